@@ -1,4 +1,4 @@
-"""Commands: talking to a flight controller (set, config, configure, backup, restore, flash, doctor)."""
+"""Commands: talking to a flight controller (set, config, backup, restore, flash, doctor)."""
 
 from __future__ import annotations
 

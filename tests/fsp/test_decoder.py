@@ -1,0 +1,119 @@
+"""Decoder bookkeeping: loss vs FC drops, with and without E1; memory; physical units."""
+
+from __future__ import annotations
+
+import math
+import tracemalloc
+
+import pytest
+
+from wftool.fsp import SensorFrame, StateDecoder, StatePacket
+from wftool.fsp.encoder import encode_state
+
+PERIOD = 953
+
+
+def frame(t_us: int, **values) -> SensorFrame:
+    fields = dict(
+        sample_time_us=t_us % 2**32, acc=(0, 0, 0), acc_1g=0, gyro_scale=0.0, gyro=(0, 0, 0),
+        attitude=(0, 0, 0, 0), rc=(0,) * 6, rpm=(0,) * 4, vbat=0,
+    )  # fmt: skip
+    fields.update(values)
+    return SensorFrame(**fields)
+
+
+def stream(indices, *, e1: bool, drops=lambda i: 0) -> bytes:
+    """Packets number `indices` of a steady stream (two frames each)."""
+    out = b""
+    for i in indices:
+        t = 1_000_000 + 2 * i * PERIOD
+        packet = StatePacket(t + PERIOD + 100, (frame(t), frame(t + PERIOD)), i, e1, drops(i))
+        out += encode_state(packet)
+    return out
+
+
+def test_e1_separates_transport_loss_from_fc_drops():
+    decoder = StateDecoder()
+    kept = [i for i in range(100) if i not in (10, 11, 50)]
+    decoder.feed(stream(kept, e1=True, drops=lambda i: 7 + (i >= 30) * 4))
+    stats = decoder.stats
+    assert (stats.lost_packets, stats.lost_frames, stats.fc_drops) == (3, 6, 4)
+    assert stats.e1 is True
+
+
+def test_without_e1_loss_is_inferred_from_sample_time_gaps():
+    decoder = StateDecoder()
+    kept = [i for i in range(100) if i not in (10, 11, 50)]
+    decoder.feed(stream(kept, e1=False))
+    stats = decoder.stats
+    assert (stats.lost_frames, stats.lost_packets, stats.fc_drops) == (6, 0, 0)
+    assert stats.e1 is False
+
+
+def test_drop_counter_wraps_modulo_2_16():
+    decoder = StateDecoder()
+    decoder.feed(stream(range(4), e1=True, drops=lambda i: (65534 + i) % 65536))
+    assert decoder.stats.fc_drops == 3
+
+
+def test_seq_repeat_is_not_counted_as_loss():
+    decoder = StateDecoder()
+    decoder.feed(stream([0, 1, 2, 2, 3], e1=True))
+    assert decoder.stats.lost_packets == 0
+
+
+def test_frame_times_unwrap_inside_a_packet_straddling_the_wrap():
+    decoder = StateDecoder()
+    t0 = 2**32 - 500
+    packet = StatePacket((t0 + PERIOD + 50) % 2**32, (frame(t0), frame(t0 + PERIOD)))
+    (decoded,) = decoder.feed(encode_state(packet))
+    assert [f.time_us for f in decoded.frames] == [t0, t0 + PERIOD]
+
+
+def test_obc_time_needs_an_arrival_time():
+    decoder = StateDecoder()
+    (no_time,) = decoder.feed(stream([0], e1=True))
+    (timed,) = decoder.feed(stream([1], e1=True), arrival_time=100.0)
+    assert no_time.frames[0].obc_time is None
+    assert timed.arrival_time == 100.0
+    assert timed.frames[1].obc_time == pytest.approx(100.0 - 100e-6)
+
+
+def test_memory_stays_flat_on_endless_garbage():
+    decoder = StateDecoder()
+    decoder.feed(b"\x01" * 10_000)
+    tracemalloc.start()
+    for _ in range(500):
+        decoder.feed(b"\x01" * 10_000)
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    assert peak < 100_000
+    assert decoder.stats.rejected["length"] == 1  # one endless chunk, counted once
+    assert decoder.feed(stream([0], e1=True)) == []  # still inside the garbage chunk
+    assert len(decoder.feed(b"\x00" + stream([1], e1=True))) == 1
+
+
+def test_physical_units():
+    f = frame(
+        0, acc=(2048, -1024, 0), acc_1g=2048, gyro_scale=0.5, gyro=(10, -4, 0),
+        attitude=(-32768, 0, 0, 0), vbat=1587,
+    )  # fmt: skip
+    assert f.acc_g == (1.0, -0.5, 0.0)
+    assert f.gyro_dps == (5.0, -2.0, 0.0)
+    assert f.quaternion == (-1.0, 0.0, 0.0, 0.0)
+    assert f.vbat_v == pytest.approx(15.87)
+    assert f.euler_deg == pytest.approx((0.0, 0.0, 0.0))
+
+
+def test_euler_angles_do_not_depend_on_quaternion_sign():
+    half = math.sqrt(0.5)
+    # 90° roll, then the same rotation written as -q
+    q = (round(half * 32767), round(half * 32767), 0, 0)
+    plus = frame(0, attitude=q).euler_deg
+    minus = frame(0, attitude=tuple(-c for c in q)).euler_deg
+    assert plus == pytest.approx(minus)
+    assert plus[0] == pytest.approx(90.0, abs=0.01)
+
+
+def test_acc_without_calibration_is_nan():
+    assert all(math.isnan(v) for v in frame(0, acc=(1, 2, 3)).acc_g)

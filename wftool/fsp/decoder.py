@@ -1,0 +1,127 @@
+"""The streaming FSP decoder: bytes in, timed state packets out, every anomaly counted.
+
+`StateDecoder.feed` takes bytes as they arrive from any transport. It never raises on
+input. On top of framing (`framing.Deframer`) it keeps the books a flight needs:
+transport loss (E1 `seq` gaps, or `sample_time_us` gaps without E1) apart from frames the
+FC itself dropped (E1 `drops`), wraps and resets of the FC clock, and each frame's time
+on the OBC clock.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from wftool.fsp.clock import U32, ClockEstimator, ClockState, FcClock, KalmanClockEstimator
+from wftool.fsp.framing import COMMAND_VERSIONS, STATE_VERSIONS, Deframer, Rejection
+from wftool.fsp.packets import (
+    DROPS_MODULUS,
+    SEQ_MODULUS,
+    CommandPacket,
+    StatePacket,
+    parse_command,
+    parse_state,
+)
+
+_SEQ_HALF = SEQ_MODULUS // 2
+
+
+@dataclass
+class StreamStats:
+    """Running totals of one decoder. Loss figures restart their baselines at an FC reset."""
+
+    bytes: int = 0
+    packets: int = 0
+    frames: int = 0
+    rejected: dict[Rejection, int] = field(default_factory=dict)
+    lost_packets: int = 0
+    """State packets missing from the E1 `seq` sequence (transport loss; E1 only)."""
+    lost_frames: int = 0
+    """Frames lost in transport: 2 per lost packet with E1, else inferred from time gaps."""
+    fc_drops: int = 0
+    """Frames the FC dropped because its queue was full (E1 only)."""
+    e1: bool | None = None
+    """Whether the latest packet carried the E1 counters."""
+    wraps: int = 0
+    resets: int = 0
+
+    @property
+    def errors(self) -> int:
+        """Chunks that did not decode, all causes."""
+        return sum(self.rejected.values())
+
+
+class StateDecoder:
+    """Decodes the FC → OBC stream. One instance per port; not thread-safe."""
+
+    def __init__(self, clock: ClockEstimator | None = None) -> None:
+        self._deframer = Deframer(STATE_VERSIONS)
+        self._fc_clock = FcClock()
+        self.clock: ClockEstimator = clock if clock is not None else KalmanClockEstimator()
+        self.stats = StreamStats(rejected=self._deframer.rejected)
+        self._last: StatePacket | None = None
+        self._epoch = 0
+
+    @property
+    def clock_state(self) -> ClockState:
+        return self.clock.state
+
+    def feed(self, data: bytes, arrival_time: float | None = None) -> list[StatePacket]:
+        """Packets completed by `data`; `arrival_time` (OBC clock, s) enables clock alignment."""
+        stats = self.stats
+        stats.bytes += len(data)
+        packets = [parse_state(payload) for payload in self._deframer.feed(data)]
+        for packet in packets:
+            self._account(packet, arrival_time)
+        stats.packets += len(packets)
+        stats.frames += 2 * len(packets)
+        stats.wraps = self._fc_clock.wraps
+        stats.resets = self._fc_clock.resets
+        return packets
+
+    def _account(self, packet: StatePacket, arrival_time: float | None) -> None:
+        # Unwrap the oldest instant in the packet; the others follow it within one period.
+        first, second = packet.frames
+        base_raw = first.values[0]
+        base_us, reset = self._fc_clock.unwrap(base_raw, arrival_time)
+        if reset:
+            self._epoch += 1
+            self._last = None
+            self.clock.reset()
+        first.time_us = base_us
+        second.time_us = second_us = base_us + (second.values[0] - base_raw) % U32
+        packet.time_us = base_us + (packet.tx_time_us - base_raw) % U32
+        packet.arrival_time = arrival_time
+        packet.epoch = self._epoch
+        if arrival_time is not None:
+            clock = self.clock
+            clock.observe(packet.time_us, arrival_time)
+            first.obc_time = clock.to_obc(base_us)
+            second.obc_time = clock.to_obc(second_us)
+
+        last, self._last = self._last, packet
+        stats = self.stats
+        stats.e1 = packet.e1
+        if last is None:
+            return
+        if packet.e1 and last.e1:
+            gap = (packet.seq - last.seq - 1) % SEQ_MODULUS
+            if gap < _SEQ_HALF:  # else a repeat or reorder: nothing lost
+                stats.lost_packets += gap
+                stats.lost_frames += 2 * gap
+            stats.fc_drops += (packet.drops - last.drops) % DROPS_MODULUS
+        else:
+            period = second_us - base_us
+            if period > 0:
+                missing = round((base_us - last.frames[1].time_us) / period) - 1
+                stats.lost_frames += max(0, missing)
+
+
+class CommandDecoder:
+    """Decodes the OBC → FC command stream: what the FC does, for tests and simulators."""
+
+    def __init__(self) -> None:
+        self._deframer = Deframer(COMMAND_VERSIONS)
+        self.rejected = self._deframer.rejected
+
+    def feed(self, data: bytes) -> list[CommandPacket]:
+        return [parse_command(payload) for payload in self._deframer.feed(data)]

@@ -1,0 +1,115 @@
+"""COBS framing of FSP packets (spec §1) and the checks every received chunk goes through.
+
+The stream is split on 0x00; each chunk is COBS-decoded, then checked for length, version
+and CRC, cheapest first. Every rejection is counted under its cause and nothing is raised:
+a receiver must survive any byte sequence.
+"""
+
+from __future__ import annotations
+
+import enum
+from collections.abc import Mapping
+
+from cobs import cobs
+
+from wftool.fsp.crc import crc8_residues
+from wftool.fsp.packets import (
+    COMMAND_LENGTH,
+    STATE_LENGTH,
+    STATE_TUNNEL_LENGTH,
+    VERSION_BASE,
+    VERSION_TUNNEL,
+)
+
+DELIMITER = b"\x00"
+
+
+class Rejection(str, enum.Enum):
+    """Why a chunk between two delimiters did not become a packet."""
+
+    COBS = "cobs"
+    LENGTH = "length"
+    VERSION = "version"
+    CRC = "crc"
+
+
+STATE_VERSIONS: Mapping[int, int] = {
+    STATE_LENGTH: VERSION_BASE,
+    STATE_TUNNEL_LENGTH: VERSION_TUNNEL,
+}
+"""Payload length → the version byte a state packet of that length must carry."""
+COMMAND_VERSIONS: Mapping[int, int] = {COMMAND_LENGTH: VERSION_BASE}
+
+
+def encode_frame(payload: bytes) -> bytes:
+    """`payload` as it goes on the wire: COBS-encoded and delimited."""
+    return cobs.encode(payload) + DELIMITER
+
+
+class Deframer:
+    """Turns a byte stream into validated packet payloads, counting what it rejects.
+
+    `versions` maps each acceptable payload length to its version byte. Chunks longer than
+    any valid packet are dropped as soon as they are seen, so garbage without a delimiter
+    cannot grow the buffer.
+    """
+
+    def __init__(self, versions: Mapping[int, int]) -> None:
+        self._versions = dict(versions)
+        # COBS adds one byte per 254 started: the longest chunk a valid packet can make.
+        longest = max(self._versions)
+        self._max_chunk = longest + 1 + longest // 254
+        self._tail = b""
+        self._discarding = False
+        self.rejected: dict[Rejection, int] = dict.fromkeys(Rejection, 0)
+
+    def feed(self, data: bytes) -> list[bytes]:
+        """Payloads of every packet completed by `data`, in stream order."""
+        chunks = (self._tail + data).split(DELIMITER) if self._tail else data.split(DELIMITER)
+        tail = chunks.pop()
+        if self._discarding and chunks:
+            chunks[0] = b""  # the rest of an oversized chunk, already counted
+            self._discarding = False
+        if len(tail) > self._max_chunk:
+            if not self._discarding:
+                self.rejected[Rejection.LENGTH] += 1
+            self._discarding = True
+            tail = b""
+        self._tail = tail
+
+        versions = self._versions
+        rejected = self.rejected
+        decode = cobs.decode
+        candidates: list[bytes] = []
+        for chunk in chunks:
+            if not chunk:
+                continue  # back-to-back delimiters carry nothing; not a fault
+            try:
+                payload = decode(chunk)
+            except cobs.DecodeError:
+                rejected[Rejection.COBS] += 1
+                continue
+            expected = versions.get(len(payload))
+            if expected is None:
+                rejected[Rejection.LENGTH] += 1
+            elif payload[0] != expected:
+                rejected[Rejection.VERSION] += 1
+            else:
+                candidates.append(payload)
+        return self._check_crc(candidates)
+
+    def _check_crc(self, candidates: list[bytes]) -> list[bytes]:
+        lengths = {len(p) for p in candidates}
+        if len(lengths) > 1:  # a stream that mixes variants: check each length on its own
+            passing = set()
+            for length in lengths:
+                same = [p for p in candidates if len(p) == length]
+                passing.update(p for p, r in zip(same, crc8_residues(same, length)) if r == 0)
+            accepted = [p for p in candidates if p in passing]
+        elif lengths:
+            residues = crc8_residues(candidates, lengths.pop())
+            accepted = [p for p, r in zip(candidates, residues) if r == 0]
+        else:
+            return []
+        self.rejected[Rejection.CRC] += len(candidates) - len(accepted)
+        return accepted

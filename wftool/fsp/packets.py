@@ -1,0 +1,245 @@
+"""FSP v5 packet models and their byte layouts (spec §3–§6), without the COBS framing.
+
+The models hold raw wire values, so decode → encode is exact; properties convert to physical
+units. Times the decoder derives (unwrapped, OBC-corrected) are left out of equality: two
+packets are equal when their wire content is.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from dataclasses import dataclass, field
+
+from wftool.fsp.crc import crc8
+
+VERSION = 5
+TUNNEL_FLAG = 0x80
+VERSION_BASE = VERSION
+VERSION_TUNNEL = VERSION | TUNNEL_FLAG
+
+STATE_LENGTH = 116
+STATE_TUNNEL_LENGTH = 180
+COMMAND_LENGTH = 24
+MAVLINK_FIELD_LENGTH = 64
+
+E1_FLAG = 1 << 23
+"""Bit 23 of the state packet's reserved2: the E1 counters are in use (spec §6)."""
+SEQ_MODULUS = 1 << 24
+DROPS_MODULUS = 1 << 16
+
+_FRAME_FORMAT = "I3hhf3h4h6h4HH"
+_FRAME_VALUES = 24
+_HEADER = "<BBHI"  # version, seq bits 0-7, seq bits 8-23, tx_time_us
+_TRAILER = "HBB"  # reserved2 bits 0-15, reserved2 bits 16-23, crc
+_STATE_BASE = struct.Struct(_HEADER + _FRAME_FORMAT * 2 + _TRAILER)
+_STATE_TUNNEL = struct.Struct(_HEADER + _FRAME_FORMAT * 2 + "64s" + _TRAILER)
+_COMMAND = struct.Struct("<BBHI6h3xB")
+assert _STATE_BASE.size == STATE_LENGTH
+assert _STATE_TUNNEL.size == STATE_TUNNEL_LENGTH
+assert _COMMAND.size == COMMAND_LENGTH
+
+Q15 = 32768.0
+RC_CHANNELS = ("roll", "pitch", "yaw", "throttle", "aux3", "aux4")
+
+
+class SensorFrame:
+    """One 52-byte sensor frame (spec §4): raw values as on the wire, units on request.
+
+    The 24 unpacked wire values stay in one tuple (`values`) and the named fields slice it
+    on access, which is what lets the decoder deliver several hundred thousand frames/s.
+    """
+
+    __slots__ = ("obc_time", "time_us", "values")
+
+    def __init__(
+        self,
+        sample_time_us: int,
+        acc: tuple[int, int, int],
+        acc_1g: int,
+        gyro_scale: float,
+        gyro: tuple[int, int, int],
+        attitude: tuple[int, int, int, int],
+        rc: tuple[int, int, int, int, int, int],
+        rpm: tuple[int, int, int, int],
+        vbat: int,
+    ) -> None:
+        values = (sample_time_us, *acc, acc_1g, gyro_scale, *gyro, *attitude, *rc, *rpm, vbat)
+        if len(values) != _FRAME_VALUES:
+            raise ValueError("a frame takes 3 acc, 3 gyro, 4 attitude, 6 rc and 4 rpm values")
+        self.values: tuple = values
+        """The 24 wire values in layout order."""
+        self.time_us: int | None = None
+        """FC capture time unwrapped to 64 bits (set by the decoder)."""
+        self.obc_time: float | None = None
+        """Capture time on the OBC clock in seconds (set by the decoder's clock estimator)."""
+
+    @classmethod
+    def from_values(cls, values: tuple) -> SensorFrame:
+        """A frame from its 24 wire values, as unpacked (no copy, no checks)."""
+        frame = cls.__new__(cls)
+        frame.values, frame.time_us, frame.obc_time = values, None, None
+        return frame
+
+    sample_time_us = property(lambda self: self.values[0])
+    acc = property(lambda self: self.values[1:4])
+    acc_1g = property(lambda self: self.values[4])
+    gyro_scale = property(lambda self: self.values[5])
+    gyro = property(lambda self: self.values[6:9])
+    attitude = property(lambda self: self.values[9:13])
+    rc = property(lambda self: self.values[13:19])
+    rpm = property(lambda self: self.values[19:23])
+    vbat = property(lambda self: self.values[23])
+
+    def __eq__(self, other: object) -> bool:
+        """Wire content only: derived times do not make two frames different."""
+        if not isinstance(other, SensorFrame):
+            return NotImplemented
+        return self.values == other.values
+
+    __hash__ = None  # type: ignore[assignment]  # the timing fields are mutable
+
+    def __repr__(self) -> str:
+        fields = ", ".join(f"{name}={getattr(self, name)!r}" for name in FRAME_FIELDS)
+        return f"SensorFrame({fields}, time_us={self.time_us}, obc_time={self.obc_time})"
+
+    @property
+    def acc_g(self) -> tuple[float, float, float]:
+        """Acceleration in g; NaN while the FC reports no 1 g calibration (acc_1g = 0)."""
+        v = self.values
+        one_g = v[4] or math.nan
+        return (v[1] / one_g, v[2] / one_g, v[3] / one_g)
+
+    @property
+    def gyro_dps(self) -> tuple[float, float, float]:
+        v = self.values
+        return (v[6] * v[5], v[7] * v[5], v[8] * v[5])
+
+    @property
+    def quaternion(self) -> tuple[float, float, float, float]:
+        """Attitude quaternion (w, x, y, z); −32768 reads as −1.0 (spec §4)."""
+        v = self.values
+        return (v[9] / Q15, v[10] / Q15, v[11] / Q15, v[12] / Q15)
+
+    @property
+    def euler_deg(self) -> tuple[float, float, float]:
+        """(roll, pitch, yaw) in degrees, in Betaflight's convention (yaw = heading, 0–360).
+
+        Every term is a product of two components, so q and −q give the same angles.
+        """
+        w, x, y, z = self.quaternion
+        norm = math.sqrt(w * w + x * x + y * y + z * z)
+        if norm == 0.0:
+            return (math.nan, math.nan, math.nan)
+        w, x, y, z = w / norm, x / norm, y / norm, z / norm
+        roll = math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
+        pitch = math.asin(max(-1.0, min(1.0, 2.0 * (w * y - x * z))))
+        yaw = -math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+        return (math.degrees(roll), math.degrees(pitch), math.degrees(yaw) % 360.0)
+
+    @property
+    def vbat_v(self) -> float:
+        return self.values[23] / 100.0
+
+
+FRAME_FIELDS = (
+    "sample_time_us", "acc", "acc_1g", "gyro_scale", "gyro", "attitude", "rc", "rpm", "vbat",
+)  # fmt: skip
+
+
+@dataclass(slots=True)
+class StatePacket:
+    """FC → OBC state packet (spec §3): two sensor frames, optional MAVLink tunnel, E1."""
+
+    tx_time_us: int
+    frames: tuple[SensorFrame, SensorFrame]
+    seq: int = 0
+    e1: bool = False
+    drops: int = 0
+    mavlink: bytes | None = None
+    """The 64-byte tunnel field of the 180-byte variant, zero padding included; else None."""
+    time_us: int | None = field(default=None, compare=False)
+    """`tx_time_us` unwrapped to 64 bits (set by the decoder)."""
+    arrival_time: float | None = field(default=None, compare=False)
+    """OBC clock (s) when the bytes carrying this packet were read (set by the decoder)."""
+    epoch: int = field(default=0, compare=False)
+    """How many FC resets the decoder had seen when this packet arrived."""
+
+    @property
+    def version(self) -> int:
+        return VERSION
+
+    @property
+    def tunnel(self) -> bool:
+        return self.mavlink is not None
+
+
+@dataclass(slots=True)
+class CommandPacket:
+    """OBC → FC command packet (spec §5): RC values for the FC's MSP receiver path."""
+
+    rc: tuple[int, int, int, int, int, int]
+    """roll, pitch, yaw, throttle, aux3, aux4 (µs-style, 1000–2000)."""
+    seq: int = 0
+    tx_time_us: int = 0
+
+
+def parse_state(payload: bytes) -> StatePacket:
+    """A validated 116- or 180-byte state payload (see `framing.Deframer`) as a packet."""
+    if len(payload) == STATE_LENGTH:
+        v = _STATE_BASE.unpack(payload)
+        mavlink, tail = None, 52
+    else:
+        v = _STATE_TUNNEL.unpack(payload)
+        mavlink, tail = v[52], 53
+    reserved2_high = v[tail + 1]
+    from_values = SensorFrame.from_values
+    return StatePacket(
+        v[3],
+        (from_values(v[4:28]), from_values(v[28:52])),
+        v[1] | v[2] << 8,
+        bool(reserved2_high & 0x80),
+        v[tail],
+        mavlink,
+    )
+
+
+def pack_state(packet: StatePacket) -> bytes:
+    """The unframed payload of `packet`, CRC included."""
+    seq = packet.seq % SEQ_MODULUS
+    reserved2 = (packet.drops % DROPS_MODULUS) | (E1_FLAG if packet.e1 else 0)
+    frames = (*packet.frames[0].values, *packet.frames[1].values)
+    try:
+        if packet.mavlink is None:
+            body = _STATE_BASE.pack(
+                VERSION_BASE, seq & 0xFF, seq >> 8, packet.tx_time_us, *frames,
+                reserved2 & 0xFFFF, reserved2 >> 16, 0,
+            )  # fmt: skip
+        else:
+            if len(packet.mavlink) > MAVLINK_FIELD_LENGTH:
+                raise ValueError(f"MAVLink tunnel field holds at most {MAVLINK_FIELD_LENGTH} bytes")
+            body = _STATE_TUNNEL.pack(
+                VERSION_TUNNEL, seq & 0xFF, seq >> 8, packet.tx_time_us, *frames,
+                packet.mavlink, reserved2 & 0xFFFF, reserved2 >> 16, 0,
+            )  # fmt: skip
+    except struct.error as exc:
+        raise ValueError(f"state packet field out of range: {exc}") from None
+    return body[:-1] + bytes([crc8(body[:-1])])
+
+
+def parse_command(payload: bytes) -> CommandPacket:
+    """A validated 24-byte command payload as a packet."""
+    v = _COMMAND.unpack(payload)
+    return CommandPacket(v[4:10], v[1] | v[2] << 8, v[3])
+
+
+def pack_command(packet: CommandPacket) -> bytes:
+    """The unframed payload of `packet`, CRC included."""
+    seq = packet.seq % SEQ_MODULUS
+    if len(packet.rc) != len(RC_CHANNELS):
+        raise ValueError(f"a command carries {len(RC_CHANNELS)} RC values: {RC_CHANNELS}")
+    try:
+        body = _COMMAND.pack(VERSION, seq & 0xFF, seq >> 8, packet.tx_time_us, *packet.rc, 0)
+    except struct.error as exc:
+        raise ValueError(f"command packet field out of range: {exc}") from None
+    return body[:-1] + bytes([crc8(body[:-1])])

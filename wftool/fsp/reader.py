@@ -1,0 +1,118 @@
+"""Reading FSP from a port: the API an OBC program uses.
+
+    with FspReader("/dev/ttyTHS1", baudrate=2_000_000) as fsp:
+        for frame in fsp.frames():
+            print(frame.obc_time, frame.acc_g, frame.euler_deg)
+            fsp.send_command((1500, 1500, 1500, 1000, 1000, 1000))
+
+Any pyserial URL works (`socket://127.0.0.1:5762` for the virtual FC, `rfc2217://…`). Bytes
+are timestamped with the OBC clock when read, which feeds clock alignment. A port that
+cannot be opened or that vanishes raises `wftool.errors.PortError` and nothing else.
+"""
+
+from __future__ import annotations
+
+import select
+import time
+from collections.abc import Callable, Iterator, Sequence
+from types import TracebackType
+
+import serial
+
+from wftool.errors import PortError
+from wftool.fsp.decoder import StateDecoder
+from wftool.fsp.encoder import CommandSender
+from wftool.fsp.packets import SensorFrame, StatePacket
+
+DEFAULT_BAUDRATE = 2_000_000
+_READ_SIZE = 1 << 16
+
+
+class FspReader:
+    """Decoded state packets from a port, plus the command uplink on the same port."""
+
+    def __init__(
+        self,
+        url: str,
+        baudrate: int = DEFAULT_BAUDRATE,
+        *,
+        decoder: StateDecoder | None = None,
+        now: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.url = url
+        self.baudrate = baudrate
+        self.decoder = decoder if decoder is not None else StateDecoder()
+        self._now = now
+        self._sender = CommandSender(now)
+        self._port: serial.SerialBase | None = None
+        self._fd: int | None = None
+
+    def open(self) -> FspReader:
+        try:
+            port = serial.serial_for_url(self.url, baudrate=self.baudrate, timeout=0)
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise PortError(f"cannot open {self.url}: {exc}") from None
+        self._port = port
+        try:
+            self._fd = port.fileno()
+        except (AttributeError, NotImplementedError, OSError, serial.SerialException):
+            self._fd = None  # no selectable descriptor (rfc2217): poll with a read timeout
+        return self
+
+    def close(self) -> None:
+        if self._port is not None:
+            self._port.close()
+            self._port = None
+
+    def __enter__(self) -> FspReader:
+        return self.open()
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        traceback: TracebackType | None,
+    ) -> None:
+        self.close()
+
+    @property
+    def port(self) -> serial.SerialBase:
+        if self._port is None:
+            raise PortError(f"{self.url} is not open")
+        return self._port
+
+    def read_bytes(self, timeout: float) -> bytes:
+        """What arrived within `timeout` seconds (returns as soon as anything did)."""
+        port = self.port
+        try:
+            if self._fd is not None:
+                ready, _, _ = select.select([self._fd], [], [], timeout)
+                return port.read(_READ_SIZE) if ready else b""
+            port.timeout = timeout
+            data = port.read(1)
+            return data + port.read(port.in_waiting) if data else data
+        except (serial.SerialException, OSError) as exc:
+            raise PortError(f"{self.url} went away: {exc}") from None
+
+    def read(self, timeout: float = 0.1) -> list[StatePacket]:
+        """Packets completed by the bytes that arrive within `timeout` (maybe none)."""
+        data = self.read_bytes(timeout)
+        return self.decoder.feed(data, self._now()) if data else []
+
+    def packets(self) -> Iterator[StatePacket]:
+        """Decoded packets, forever (until the port fails)."""
+        while True:
+            yield from self.read()
+
+    def frames(self) -> Iterator[SensorFrame]:
+        """Decoded sensor frames in capture order, forever (until the port fails)."""
+        for packet in self.packets():
+            yield from packet.frames
+
+    def send_command(self, rc: Sequence[int]) -> None:
+        """Send RC values (roll, pitch, yaw, throttle, aux3, aux4) to the FC."""
+        wire = self._sender.encode(rc)
+        try:
+            self.port.write(wire)
+        except (serial.SerialException, OSError) as exc:
+            raise PortError(f"{self.url} went away: {exc}") from None
