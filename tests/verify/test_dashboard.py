@@ -1,0 +1,43 @@
+"""The dashboard as text, through rich's recording console (what a user's terminal shows)."""
+
+from __future__ import annotations
+
+from rich.console import Console
+
+from tests.verify.test_monitor import feed_steady
+from wftool.verify.criteria import Criteria, judge
+from wftool.verify.dashboard import render
+from wftool.verify.monitor import StreamMonitor
+
+
+def screen(monitor: StreamMonitor) -> str:
+    console = Console(record=True, width=120, color_system=None)
+    summary = monitor.summary()
+    console.print(render(summary, monitor.latest, judge(summary, Criteria())))
+    return console.export_text()
+
+
+def test_dashboard_shows_rates_intervals_values_and_verdict():
+    monitor = StreamMonitor("socket://127.0.0.1:5762", expected_rate_hz=1049.3)
+    monitor.connected(0.0)
+    feed_steady(monitor, [i for i in range(1000) if i not in (500, 501)], 0.0)
+    text = screen(monitor)
+    assert "socket://127.0.0.1:5762 — connected" in text
+    assert "1,996 frames" in text
+    assert "1049.3" in text  # expected and FC-measured source rate
+    fc_row = next(line for line in text.splitlines() if "FC sample" in line)
+    assert [cell.strip() for cell in fc_row.split("│")[3:8]] == ["954.9", "953", "953", "953", "0"]
+    assert "loss 4 frames (0.200 %)" in text
+    assert "E1 on" in text
+    assert "locked" in text and "ppm" in text
+    assert "1500  1500  1500  1300  1000  2000" not in text  # blank frames carry zeros
+    assert "0  0  0  0  0  0" in text
+    assert "FAIL" in text and "✗ transport loss: 0.2 % (limit ≤ 0.1 %)" in text
+    assert "✓ frame rate" in text
+
+
+def test_dashboard_before_any_data():
+    monitor = StreamMonitor("/dev/ttyTHS1")
+    text = screen(monitor)
+    assert "disconnected" in text and "no frame yet" in text
+    assert "FAIL" in text and "✗ frames received: 0" in text

@@ -1,0 +1,121 @@
+"""StreamMonitor and the verdict, fed with real encoded streams and explicit arrival times."""
+
+from __future__ import annotations
+
+import pytest
+
+from tests.fsp.test_decoder import frame, stream
+from wftool.fsp import StatePacket
+from wftool.fsp.encoder import encode_state
+from wftool.verify.criteria import Criteria, judge
+from wftool.verify.monitor import IntervalHistogram, StreamMonitor
+from wftool.verify.uplink import UplinkTracker, pattern_command
+
+PACKET_S = 2 * 953e-6
+
+
+def feed_steady(monitor: StreamMonitor, indices, t0: float, chunk: int = 10) -> float:
+    """Feed packets `indices` in reads of `chunk` packets, arriving in real time."""
+    indices = list(indices)
+    t = t0
+    for start in range(0, len(indices), chunk):
+        part = indices[start : start + chunk]
+        t = t0 + (part[-1] + 1) * PACKET_S
+        monitor.feed(stream(part, e1=True), t)
+    return t
+
+
+def test_histogram_percentiles():
+    histogram = IntervalHistogram()
+    for value in range(1, 101):
+        histogram.add(value)
+    summary = histogram.summary()
+    assert (summary.p1_us, summary.p50_us, summary.p99_us) == (1, 50, 99)  # nearest rank
+    assert summary.mean_us == 50.5
+    assert summary.spread_us == 98
+
+
+def test_steady_stream_passes():
+    monitor = StreamMonitor("test")
+    monitor.connected(0.0)
+    t = feed_steady(monitor, range(1000), 0.0)
+    monitor.disconnected(t)
+    summary = monitor.summary()
+    assert summary.frames == 2000
+    assert summary.frame_rate_hz == pytest.approx(1e6 / 953, rel=0.01)
+    assert summary.source_rate_hz == pytest.approx(1e6 / 953)
+    assert summary.fc_interval.spread_us == 0
+    assert summary.e1 is True and summary.clock is not None
+    verdict = judge(summary, Criteria())
+    assert verdict.passed, verdict
+
+
+def test_loss_and_rejections_fail_the_verdict():
+    monitor = StreamMonitor("test", expected_rate_hz=1e6 / 953)
+    monitor.connected(0.0)
+    t = feed_steady(monitor, [i for i in range(1000) if i % 100 != 5], 0.0)
+    monitor.feed(b"\x02\x07\x00", t)  # a chunk that is no packet, after sync: an error
+    summary = monitor.summary()
+    assert summary.lost_frames == 20 and summary.errors == 1
+    failed = {c.name for c in judge(summary, Criteria()).checks if not c.passed}
+    assert failed == {"transport loss", "rejected chunks"}
+    assert judge(summary, Criteria(max_loss_pct=2.0, max_errors=1)).passed
+
+
+def test_joining_mid_stream_is_not_an_error():
+    monitor = StreamMonitor("test")
+    monitor.connected(0.0)
+    wire = stream(range(50), e1=True)
+    monitor.feed(wire[37:], 0.1)  # starts inside packet 0
+    summary = monitor.summary()
+    assert (summary.errors, summary.sync_rejected, summary.packets) == (0, 1, 49)
+
+
+def test_reconnect_is_counted_and_totals_survive_it():
+    monitor = StreamMonitor("test")
+    monitor.connected(0.0)
+    t = feed_steady(monitor, range(100), 0.0)
+    monitor.disconnected(t)
+    monitor.connected(t + 1.0)
+    t2 = feed_steady(monitor, range(100), t + 1.0)
+    summary = monitor.summary(t2)
+    assert summary.reconnects == 1 and summary.connected
+    assert summary.frames == 400
+    assert summary.connected_s == pytest.approx(t2 - 1.0, abs=1e-9)
+
+
+def test_rate_below_expectation_fails():
+    monitor = StreamMonitor("test", expected_rate_hz=2000.0)
+    monitor.connected(0.0)
+    monitor.disconnected(feed_steady(monitor, range(500), 0.0))
+    verdict = judge(monitor.summary(), Criteria())
+    assert [c.name for c in verdict.checks if not c.passed] == ["frame rate"]
+
+
+def test_uplink_echo_is_matched_with_round_trip_time():
+    """The FC echoes each command's roll 15 ms later; the tracker must see exactly that."""
+    tracker = UplinkTracker()
+    monitor = StreamMonitor("test", uplink=tracker)
+    monitor.connected(0.0)
+    rate = 50.0
+    echo_roll = 1500
+    sent = []
+    for i in range(100):
+        t = i / rate
+        rc = pattern_command(i, rate)
+        monitor.command_sent(rc, t)
+        sent.append((t, rc[0]))
+        while sent and sent[0][0] <= t - 0.015:
+            echo_roll = sent.pop(0)[1]
+        rc_frame = (echo_roll, 1500, 1500, 1000, 1000, 1000)
+        base = 1_000_000 + i * 20_000
+        packet = StatePacket(
+            base + 1000, (frame(base, rc=rc_frame), frame(base + 953, rc=rc_frame)), i, True
+        )
+        monitor.feed(encode_state(packet), t + 0.0001)
+    uplink = monitor.summary().uplink
+    assert uplink.commands_sent == 100
+    assert uplink.steps_echoed >= uplink.steps_sent - 1
+    assert uplink.rtt_p50_ms == pytest.approx(20.1, abs=0.5)  # 15 ms echo, seen on the next packet
+    checks = judge(monitor.summary(), Criteria(uplink=True)).checks
+    assert [c.passed for c in checks if c.name == "uplink echoed"] == [True]

@@ -1,0 +1,120 @@
+"""The live verify loop: read a port, feed the monitor, record, drive the uplink, reconnect.
+
+Runs until `duration_s` passes or `stop` is set. A port that cannot be opened at the start
+is a `PortError` (the caller's connection error); one that goes away later is shown,
+counted, and reopened with backoff — a rebooting FC or a restarted SITL is survived.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from wftool.errors import PortError
+from wftool.fsp import FspReader
+from wftool.verify.monitor import StreamMonitor, StreamSummary
+from wftool.verify.recording import Event, Recorder
+from wftool.verify.uplink import pattern_command
+
+REFRESH_S = 0.25
+READ_TIMEOUT_S = 0.05
+BACKOFF_FIRST_S = 0.1
+BACKOFF_MAX_S = 2.0
+
+
+@dataclass(frozen=True)
+class LiveOptions:
+    url: str
+    baudrate: int
+    duration_s: float | None = None
+    uplink_rate_hz: float | None = None
+    """Send the uplink pattern at this rate; None sends nothing."""
+
+
+def run_live(
+    options: LiveOptions,
+    monitor: StreamMonitor,
+    recorder: Recorder | None = None,
+    on_refresh: Callable[[StreamSummary], None] | None = None,
+    stop: threading.Event | None = None,
+    now: Callable[[], float] = time.monotonic,
+) -> StreamSummary:
+    """Verify the stream on `options.url` until the duration is up; the final summary."""
+    start = now()
+    end = start + options.duration_s if options.duration_s is not None else float("inf")
+    reader: FspReader | None = None
+    backoff = BACKOFF_FIRST_S
+    retry_at = start
+    command_index = 0
+    period = 1.0 / options.uplink_rate_hz if options.uplink_rate_hz else None
+    next_command = start
+    next_refresh = start
+    connected_once = False
+
+    def record(event: Event) -> None:
+        if recorder is not None:
+            recorder.event(event)
+
+    def drop(t: float) -> None:
+        nonlocal reader, retry_at
+        if reader is not None:
+            reader.close()
+            reader = None
+        monitor.disconnected(t)
+        record(Event("disconnected", t))
+        retry_at = t + backoff
+
+    try:
+        while True:
+            t = now()
+            if t >= end or (stop is not None and stop.is_set()):
+                break
+            if reader is None:
+                if t < retry_at:
+                    time.sleep(min(retry_at - t, end - t, READ_TIMEOUT_S))
+                    continue
+                try:
+                    reader = FspReader(options.url, options.baudrate).open()
+                except PortError:
+                    if not connected_once:
+                        raise  # the caller's connection error, not a dropout
+                    backoff = min(2 * backoff, BACKOFF_MAX_S)
+                    retry_at = t + backoff
+                    continue
+                t = now()
+                connected_once = True
+                monitor.connected(t)
+                record(Event("connected", t))
+                backoff = BACKOFF_FIRST_S
+            wait = READ_TIMEOUT_S
+            if period is not None:
+                wait = max(0.0, min(wait, next_command - t))
+            try:
+                data = reader.read_bytes(wait)
+                t = now()
+                if data:
+                    record(Event("bytes", t, data))
+                    packets = monitor.feed(data, t)
+                    if recorder is not None:
+                        recorder.packets(packets)
+                if period is not None and t >= next_command:
+                    rc = pattern_command(command_index, options.uplink_rate_hz)
+                    reader.send_command(rc)
+                    monitor.command_sent(rc, t)
+                    record(Event("command", t, rc=rc))
+                    command_index += 1
+                    next_command = max(next_command + period, t - period)
+            except PortError:
+                drop(now())
+            if on_refresh is not None and t >= next_refresh:
+                on_refresh(monitor.summary(t))
+                next_refresh = t + REFRESH_S
+    finally:
+        t = now()
+        if reader is not None:
+            reader.close()
+            monitor.disconnected(t)
+            record(Event("disconnected", t))
+    return monitor.summary(t)

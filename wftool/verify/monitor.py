@@ -1,0 +1,270 @@
+"""Statistics of a live (or replayed) FSP stream: what `verify` shows and judges.
+
+`StreamMonitor` is fed the same events live and on replay — connects, disconnects, byte
+chunks with their OBC arrival time, commands sent — so a recording replays to the same
+summary. Interval statistics live in integer-µs histograms: exact percentiles in memory
+bounded by the number of distinct intervals, not by the length of the run.
+"""
+
+from __future__ import annotations
+
+from collections import Counter, deque
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
+
+from wftool.fsp import SensorFrame, StateDecoder, StatePacket
+from wftool.fsp.clock import ClockState
+from wftool.fsp.framing import Rejection
+from wftool.verify.uplink import UplinkStats, UplinkTracker
+
+RATE_WINDOW_S = 2.0
+"""The dashboard's "current rate" looks back this far."""
+_SYNC_ALLOWANCE = 1
+"""Joining a stream mid-packet cuts at most one chunk: that rejection is not an error."""
+
+
+@dataclass(frozen=True)
+class IntervalSummary:
+    count: int
+    mean_us: float
+    p1_us: float
+    p50_us: float
+    p99_us: float
+
+    @property
+    def spread_us(self) -> float:
+        """P99 − P1: the jitter figure the verdict judges."""
+        return self.p99_us - self.p1_us
+
+
+class IntervalHistogram:
+    """Intervals in whole microseconds."""
+
+    def __init__(self) -> None:
+        self._counts: Counter[int] = Counter()
+        self._total = 0
+        self._sum = 0
+
+    def add(self, interval_us: int) -> None:
+        self._counts[interval_us] += 1
+        self._total += 1
+        self._sum += interval_us
+
+    def summary(self) -> IntervalSummary | None:
+        if not self._total:
+            return None
+        ranks = [0.01 * (self._total - 1), 0.5 * (self._total - 1), 0.99 * (self._total - 1)]
+        found: list[float] = []
+        seen = 0
+        for value in sorted(self._counts):
+            seen += self._counts[value]
+            while ranks and seen > ranks[0]:
+                found.append(float(value))
+                ranks.pop(0)
+        return IntervalSummary(self._total, self._sum / self._total, *found)
+
+
+@dataclass(frozen=True)
+class StreamSummary:
+    """Everything `verify` reports, as plain data (`as_json` for scripts)."""
+
+    port: str
+    duration_s: float
+    connected_s: float
+    packets: int
+    frames: int
+    frame_rate_hz: float
+    packet_rate_hz: float
+    current_frame_rate_hz: float
+    source_rate_hz: float | None
+    """1 / median FC sample interval: the rate the FC captures at."""
+    expected_rate_hz: float | None
+    fc_interval: IntervalSummary | None
+    arrival_interval: IntervalSummary | None
+    lost_frames: int
+    lost_packets: int
+    fc_drops: int
+    e1: bool | None
+    rejected: dict[str, int]
+    sync_rejected: int
+    """Chunks rejected before the first packet of each connection (joining mid-stream)."""
+    resets: int
+    wraps: int
+    reconnects: int
+    clock: ClockState | None
+    uplink: UplinkStats | None
+    connected: bool
+
+    @property
+    def errors(self) -> int:
+        return sum(self.rejected.values())
+
+    @property
+    def loss_pct(self) -> float:
+        sent = self.frames + self.lost_frames
+        return 100.0 * self.lost_frames / sent if sent else 0.0
+
+    def as_json(self) -> dict:
+        data = asdict(self)
+        data.update(errors=self.errors, loss_pct=self.loss_pct)
+        for key in ("fc_interval", "arrival_interval"):
+            interval = getattr(self, key)
+            if interval is not None:
+                data[key]["spread_us"] = interval.spread_us
+        return data
+
+
+@dataclass
+class _Connection:
+    decoder: StateDecoder
+    opened_at: float
+    synced_errors: int | None = None
+    last_frame: SensorFrame | None = None
+    last_epoch: int = 0
+    last_arrival: float | None = None
+
+
+@dataclass
+class StreamMonitor:
+    """Accumulates one verify run across reconnects."""
+
+    port: str
+    expected_rate_hz: float | None = None
+    fc_intervals: IntervalHistogram = field(default_factory=IntervalHistogram)
+    arrival_intervals: IntervalHistogram = field(default_factory=IntervalHistogram)
+    latest: SensorFrame | None = None
+    latest_packet: StatePacket | None = None
+    uplink: UplinkTracker | None = None
+
+    def __post_init__(self) -> None:
+        self._connection: _Connection | None = None
+        self._last_decoder: StateDecoder | None = None  # for E1 and clock after a disconnect
+        self._closed: list[dict[str, int]] = []  # totals of finished connections
+        self._started: float | None = None
+        self._now = 0.0
+        self._connected_s = 0.0
+        self._reconnects = 0
+        self._recent: deque[tuple[float, int]] = deque()
+
+    # -- events -----------------------------------------------------------------------------
+
+    def connected(self, t: float) -> None:
+        if self._started is None:
+            self._started = t
+        elif self._connection is None:
+            self._reconnects += 1
+        self._connection = _Connection(StateDecoder(), t)
+        self._last_decoder = self._connection.decoder
+        self._now = t
+
+    def disconnected(self, t: float) -> None:
+        connection = self._connection
+        if connection is None:
+            return
+        self._connected_s += t - connection.opened_at
+        self._closed.append(self._totals(connection))
+        self._connection = None
+        self._now = t
+
+    def feed(self, data: bytes, t: float) -> list[StatePacket]:
+        connection = self._connection
+        if connection is None:
+            raise RuntimeError("feed() before connected()")
+        self._now = t
+        packets = connection.decoder.feed(data, t)
+        if not packets:
+            return packets
+        if connection.synced_errors is None:
+            connection.synced_errors = min(_SYNC_ALLOWANCE, connection.decoder.stats.errors)
+        previous, epoch = connection.last_frame, connection.last_epoch
+        last_arrival = connection.last_arrival
+        for packet in packets:
+            first, second = packet.frames
+            if previous is not None and packet.epoch == epoch:
+                self.fc_intervals.add(first.time_us - previous.time_us)
+            self.fc_intervals.add(second.time_us - first.time_us)
+            if last_arrival is not None:
+                self.arrival_intervals.add(round((t - last_arrival) * 1e6))
+            last_arrival = t
+            previous, epoch = second, packet.epoch
+            if self.uplink is not None:
+                self.uplink.observe(packet, t)
+        connection.last_frame, connection.last_epoch = previous, epoch
+        connection.last_arrival = last_arrival
+        self.latest = previous
+        self.latest_packet = packets[-1]
+        recent = self._recent
+        recent.append((t, 2 * len(packets)))
+        while recent and recent[0][0] < t - RATE_WINDOW_S:
+            recent.popleft()
+        return packets
+
+    def command_sent(self, rc: Sequence[int], t: float) -> None:
+        if self.uplink is not None:
+            self.uplink.sent(rc, t)
+
+    # -- results ----------------------------------------------------------------------------
+
+    def summary(self, now: float | None = None) -> StreamSummary:
+        now = self._now if now is None else now
+        totals = Counter()
+        for closed in self._closed:
+            totals.update(closed)
+        connection = self._connection
+        connected_s = self._connected_s
+        if connection is not None:
+            totals.update(self._totals(connection))
+            connected_s += now - connection.opened_at
+        last = self._last_decoder
+        fc = self.fc_intervals.summary()
+        frames = totals["frames"]
+        window = [n for t, n in self._recent if t >= now - RATE_WINDOW_S]
+        window_s = min(RATE_WINDOW_S, now - connection.opened_at) if connection else RATE_WINDOW_S
+        return StreamSummary(
+            port=self.port,
+            duration_s=now - self._started if self._started is not None else 0.0,
+            connected_s=connected_s,
+            packets=totals["packets"],
+            frames=frames,
+            frame_rate_hz=frames / connected_s if connected_s > 0 else 0.0,
+            packet_rate_hz=totals["packets"] / connected_s if connected_s > 0 else 0.0,
+            current_frame_rate_hz=sum(window) / window_s if window_s > 0 else 0.0,
+            source_rate_hz=1e6 / fc.p50_us if fc is not None and fc.p50_us > 0 else None,
+            expected_rate_hz=self.expected_rate_hz,
+            fc_interval=fc,
+            arrival_interval=self.arrival_intervals.summary(),
+            lost_frames=totals["lost_frames"],
+            lost_packets=totals["lost_packets"],
+            fc_drops=totals["fc_drops"],
+            e1=last.stats.e1 if last is not None else None,
+            rejected={cause.value: totals[cause.value] for cause in Rejection},
+            sync_rejected=totals["sync_rejected"],
+            resets=totals["resets"],
+            wraps=totals["wraps"],
+            reconnects=self._reconnects,
+            clock=last.clock_state if last is not None else None,
+            uplink=self.uplink.stats() if self.uplink is not None else None,
+            connected=connection is not None,
+        )
+
+    @staticmethod
+    def _totals(connection: _Connection) -> dict[str, int]:
+        stats = connection.decoder.stats
+        sync = connection.synced_errors
+        if sync is None:
+            sync = min(_SYNC_ALLOWANCE, stats.errors)
+        rejected = dict(stats.rejected)
+        if sync:  # the cut chunk: whichever cause it landed in, it is not an error
+            cause = next(c for c in Rejection if rejected[c])
+            rejected[cause] -= sync
+        return {
+            "packets": stats.packets,
+            "frames": stats.frames,
+            "lost_frames": stats.lost_frames,
+            "lost_packets": stats.lost_packets,
+            "fc_drops": stats.fc_drops,
+            "resets": stats.resets,
+            "wraps": stats.wraps,
+            "sync_rejected": sync,
+            **{cause.value: count for cause, count in rejected.items()},
+        }

@@ -1,0 +1,242 @@
+"""Recordings of a verify run: MCAP (Foxglove, PlotJuggler) and CSV.
+
+The MCAP file holds two JSON-schema channels: `/fsp/frame`, one message per decoded frame
+stamped with its corrected OBC time, and `/fsp/events`, the raw byte chunks and connection
+and command events exactly as the monitor saw them, so `wftool replay` reproduces the run's
+statistics. Files are finished on close, also when the run is interrupted.
+"""
+
+from __future__ import annotations
+
+import base64
+import csv
+import json
+import math
+import time
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, TextIO
+
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+from mcap.writer import Writer
+
+from wftool import __version__
+from wftool.errors import UsageError
+from wftool.fsp import SensorFrame, StatePacket
+from wftool.verify.monitor import StreamMonitor
+from wftool.verify.uplink import UplinkTracker
+
+FRAME_TOPIC = "/fsp/frame"
+EVENT_TOPIC = "/fsp/events"
+METADATA_NAME = "wftool.verify"
+
+_VECTOR = {"type": "array", "items": {"type": ["number", "null"]}}
+FRAME_SCHEMA = {
+    "title": "wftool.fsp.Frame",
+    "type": "object",
+    "properties": {
+        "seq": {"type": "integer", "description": "E1 sequence number of the packet"},
+        "epoch": {"type": "integer", "description": "FC resets seen before this frame"},
+        "fc_time_us": {"type": "integer", "description": "FC capture time, unwrapped"},
+        "obc_time": {"type": "number", "description": "capture time on the OBC clock, Unix s"},
+        "sample_time_us": {"type": "integer", "description": "raw u32 FC capture time"},
+        "acc_g": _VECTOR,
+        "gyro_dps": _VECTOR,
+        "quaternion": _VECTOR,
+        "euler_deg": _VECTOR,
+        "rc": _VECTOR,
+        "rpm": _VECTOR,
+        "vbat_v": {"type": "number"},
+        "acc_raw": _VECTOR,
+        "acc_1g": {"type": "integer"},
+        "gyro_raw": _VECTOR,
+        "gyro_scale": {"type": "number"},
+    },
+}
+EVENT_SCHEMA = {
+    "title": "wftool.verify.Event",
+    "type": "object",
+    "properties": {
+        "kind": {"enum": ["connected", "disconnected", "bytes", "command"]},
+        "t": {"type": "number", "description": "OBC monotonic clock, s"},
+        "data": {"type": "string", "contentEncoding": "base64"},
+        "rc": _VECTOR,
+    },
+}
+CSV_COLUMNS = (
+    ["obc_time", "fc_time_us", "seq", "epoch"]
+    + [f"acc_{a}_g" for a in "xyz"]
+    + [f"gyro_{a}_dps" for a in "xyz"]
+    + [f"q{c}" for c in "wxyz"]
+    + ["roll_deg", "pitch_deg", "yaw_deg"]
+    + ["rc_roll", "rc_pitch", "rc_yaw", "rc_throttle", "rc_aux3", "rc_aux4"]
+    + [f"rpm_{m}" for m in range(1, 5)]
+    + ["vbat_v"]
+)
+
+
+def _finite(values: Sequence[float]) -> list[float | None]:
+    return [None if math.isnan(v) else v for v in values]
+
+
+@dataclass(frozen=True)
+class Event:
+    kind: str
+    t: float
+    data: bytes = b""
+    rc: tuple[int, ...] = ()
+
+
+class Recorder:
+    """Writes what a run sees to MCAP and/or CSV; call `close()` (or use `with`)."""
+
+    def __init__(
+        self, mcap_path: Path | None, csv_path: Path | None, metadata: dict[str, str]
+    ) -> None:
+        # Monotonic OBC times become Unix times in the file, for tools that show dates.
+        self._wall_offset = time.time() - time.monotonic()
+        self._mcap_file = self._writer = None
+        self._csv_file: TextIO | None = None
+        try:
+            if mcap_path is not None:
+                self._mcap_file = open(mcap_path, "wb")  # noqa: SIM115 - closed in close()
+                self._writer = Writer(self._mcap_file)
+                self._writer.start(profile="", library=f"wftool {__version__}")
+                self._writer.add_metadata(METADATA_NAME, {**metadata, "wftool": __version__})
+                self._frame_channel = self._channel(FRAME_TOPIC, FRAME_SCHEMA)
+                self._event_channel = self._channel(EVENT_TOPIC, EVENT_SCHEMA)
+            if csv_path is not None:
+                self._csv_file = open(csv_path, "w", newline="")  # noqa: SIM115 - closed in close()
+                self._csv = csv.writer(self._csv_file)
+                self._csv.writerow(CSV_COLUMNS)
+        except OSError as exc:
+            self.close()
+            raise UsageError(f"cannot write the recording: {exc}") from None
+
+    def _channel(self, topic: str, schema: dict[str, Any]) -> int:
+        schema_id = self._writer.register_schema(
+            name=schema["title"], encoding="jsonschema", data=json.dumps(schema).encode()
+        )
+        return self._writer.register_channel(topic, message_encoding="json", schema_id=schema_id)
+
+    def _ns(self, t: float) -> int:
+        return int((t + self._wall_offset) * 1e9)
+
+    def event(self, event: Event) -> None:
+        if self._writer is None:
+            return
+        message: dict[str, Any] = {"kind": event.kind, "t": event.t}
+        if event.data:
+            message["data"] = base64.b64encode(event.data).decode()
+        if event.rc:
+            message["rc"] = list(event.rc)
+        ns = self._ns(event.t)
+        self._writer.add_message(
+            self._event_channel, log_time=ns, publish_time=ns, data=json.dumps(message).encode()
+        )
+
+    def packets(self, packets: Sequence[StatePacket]) -> None:
+        for packet in packets:
+            for frame in packet.frames:
+                self._frame(packet, frame)
+
+    def _frame(self, packet: StatePacket, frame: SensorFrame) -> None:
+        obc_time = frame.obc_time + self._wall_offset if frame.obc_time is not None else None
+        if self._writer is not None:
+            ns = int(obc_time * 1e9) if obc_time is not None else self._ns(packet.arrival_time)
+            message = {
+                "seq": packet.seq,
+                "epoch": packet.epoch,
+                "fc_time_us": frame.time_us,
+                "obc_time": obc_time,
+                "sample_time_us": frame.sample_time_us,
+                "acc_g": _finite(frame.acc_g),
+                "gyro_dps": list(frame.gyro_dps),
+                "quaternion": list(frame.quaternion),
+                "euler_deg": _finite(frame.euler_deg),
+                "rc": list(frame.rc),
+                "rpm": list(frame.rpm),
+                "vbat_v": frame.vbat_v,
+                "acc_raw": list(frame.acc),
+                "acc_1g": frame.acc_1g,
+                "gyro_raw": list(frame.gyro),
+                "gyro_scale": frame.gyro_scale,
+            }
+            self._writer.add_message(
+                self._frame_channel, log_time=ns, publish_time=ns, data=json.dumps(message).encode()
+            )
+        if self._csv_file is not None:
+            self._csv.writerow(
+                [
+                    obc_time, frame.time_us, packet.seq, packet.epoch,
+                    *frame.acc_g, *frame.gyro_dps, *frame.quaternion, *frame.euler_deg,
+                    *frame.rc, *frame.rpm, frame.vbat_v,
+                ]
+            )  # fmt: skip
+
+    def close(self) -> None:
+        if self._writer is not None:
+            self._writer.finish()
+            self._writer = None
+        for handle in (self._mcap_file, self._csv_file):
+            if handle is not None:
+                handle.close()
+        self._mcap_file = self._csv_file = None
+
+    def __enter__(self) -> Recorder:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+
+def read_recording(path: Path) -> tuple[dict[str, str], Iterator[Event]]:
+    """The run's metadata and its events in recorded order."""
+    try:
+        handle = open(path, "rb")  # noqa: SIM115 - closed by the generator
+        reader = make_reader(handle)
+        metadata: dict[str, str] = {}
+        for record in reader.iter_metadata():
+            if record.name == METADATA_NAME:
+                metadata = dict(record.metadata)
+    except (OSError, McapError, ValueError) as exc:
+        raise UsageError(f"cannot read recording {path}: {exc}") from None
+
+    def events() -> Iterator[Event]:
+        with handle:
+            try:
+                for _, _, message in reader.iter_messages(
+                    topics=[EVENT_TOPIC], log_time_order=False
+                ):
+                    raw = json.loads(message.data)
+                    yield Event(
+                        raw["kind"],
+                        raw["t"],
+                        base64.b64decode(raw.get("data", "")),
+                        tuple(raw.get("rc", ())),
+                    )
+            except (McapError, ValueError, KeyError) as exc:
+                raise UsageError(f"recording {path} is damaged: {exc}") from None
+
+    return metadata, events()
+
+
+def replay_recording(path: Path, expected_rate_hz: float | None = None) -> StreamMonitor:
+    """A monitor that has seen exactly what the recorded run saw."""
+    metadata, events = read_recording(path)
+    if expected_rate_hz is None and metadata.get("expected_rate_hz"):
+        expected_rate_hz = float(metadata["expected_rate_hz"])
+    uplink = UplinkTracker() if metadata.get("uplink_rate_hz") else None
+    monitor = StreamMonitor(metadata.get("port", str(path)), expected_rate_hz, uplink=uplink)
+    for event in events:
+        if event.kind == "connected":
+            monitor.connected(event.t)
+        elif event.kind == "disconnected":
+            monitor.disconnected(event.t)
+        elif event.kind == "bytes":
+            monitor.feed(event.data, event.t)
+        elif event.kind == "command":
+            monitor.command_sent(event.rc, event.t)
+    return monitor

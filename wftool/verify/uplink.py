@@ -1,0 +1,90 @@
+"""The uplink check: command packets with a known pattern, watched for in the FC's stream.
+
+The roll channel steps through distinct values, each held long enough for the FC's RX
+task to pick it up. The first streamed frame whose RC roll shows a step's value closes the
+OBC → FC → OBC loop for that step; the time since the step was first sent is its round trip.
+Throttle stays at its minimum and only roll, pitch, yaw, throttle, aux3 and aux4 are sent.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from wftool.fsp import StatePacket
+
+PATTERN = (1100, 1300, 1500, 1700, 1900, 1200, 1400, 1600, 1800)
+NEUTRAL = 1500
+THROTTLE_MIN = 1000
+STEP_S = 0.1
+"""How long each roll value is held."""
+
+
+def pattern_command(index: int, rate_hz: float) -> tuple[int, int, int, int, int, int]:
+    """Command number `index` of the pattern sent at `rate_hz`."""
+    hold = max(1, math.ceil(STEP_S * rate_hz))
+    roll = PATTERN[(index // hold) % len(PATTERN)]
+    return (roll, NEUTRAL, NEUTRAL, THROTTLE_MIN, THROTTLE_MIN, THROTTLE_MIN)
+
+
+@dataclass(frozen=True)
+class UplinkStats:
+    commands_sent: int
+    steps_sent: int
+    steps_echoed: int
+    rtt_p50_ms: float | None
+    rtt_p99_ms: float | None
+    rtt_max_ms: float | None
+
+    @property
+    def echoed_fraction(self) -> float:
+        # The newest step may still be in flight when the run ends.
+        due = max(self.steps_sent - 1, 0)
+        return min(1.0, self.steps_echoed / due) if due else 0.0
+
+
+class UplinkTracker:
+    """Matches sent roll steps with their first echo in the stream."""
+
+    def __init__(self) -> None:
+        self._commands = 0
+        self._steps: list[tuple[int, float]] = []  # (roll value, first sent at)
+        self._echoed: set[int] = set()
+        self._rtts: list[float] = []
+        self._last_roll: int | None = None
+
+    def sent(self, rc: Sequence[int], t: float) -> None:
+        self._commands += 1
+        roll = rc[0]
+        if not self._steps or self._steps[-1][0] != roll:
+            self._steps.append((roll, t))
+
+    def observe(self, packet: StatePacket, t: float) -> None:
+        for frame in packet.frames:
+            roll = frame.values[13]
+            if roll == self._last_roll:
+                continue
+            self._last_roll = roll
+            for index in range(len(self._steps) - 1, -1, -1):
+                value, sent_at = self._steps[index]
+                if value == roll and sent_at <= t:
+                    if index not in self._echoed:
+                        self._echoed.add(index)
+                        self._rtts.append(t - sent_at)
+                    break
+
+    def stats(self) -> UplinkStats:
+        rtts = sorted(self._rtts)
+
+        def quantile(q: float) -> float | None:
+            return 1e3 * rtts[round(q * (len(rtts) - 1))] if rtts else None
+
+        return UplinkStats(
+            commands_sent=self._commands,
+            steps_sent=len(self._steps),
+            steps_echoed=len(self._echoed),
+            rtt_p50_ms=quantile(0.5),
+            rtt_p99_ms=quantile(0.99),
+            rtt_max_ms=1e3 * rtts[-1] if rtts else None,
+        )
