@@ -96,7 +96,10 @@ def test_a_command_failing_midway_leaves_nothing_saved(
     # after the `set` before it already changed RAM.
     plan = parse_cli_script("set gyro_lpf1_static_hz = 123\naux 99 0 0 900 2100 0 0\n", "x.txt")
     eeprom = _eeprom(virtual_fc)
-    with pytest.raises(CliCommandError, match="INDEX NOT BETWEEN 0 AND 19 — nothing was saved"):
+    with pytest.raises(
+        CliCommandError,
+        match="INDEX NOT BETWEEN 0 AND 19 — nothing was saved; the FC drops unsaved",
+    ):
         apply_plan(virtual_fc, plan, tmp_path)
     assert _eeprom(virtual_fc) == eeprom
     virtual_fc.restart()

@@ -207,7 +207,6 @@ class ChangeRow:
 class ChangeReport:
     backup: Path
     rows: list[ChangeRow]
-    notes: list[str]
     features: tuple[int, int] | None = None
     """(mask before, mask after) when the plan switched features over MSP."""
     features_ok: bool = True
@@ -246,17 +245,13 @@ def apply_plan(
 ) -> ChangeReport:
     """Run the whole safe workflow; see the module docstring."""
     with configuration_session(board, backup_dir, log) as (session, msp, backup):
+        features_before = None
         try:
             plan = plan(session) if callable(plan) else plan
             for note in plan.notes:
                 log(note)
             changes = _validate(session, plan)
-        except (ParameterError, CliCommandError):
-            _leave_without_saving(session, board)
-            raise
-        log(f"validated {len(plan.commands)} commands with the FC; applying")
-        features_before = None
-        try:
+            log(f"validated {len(plan.commands)} commands with the FC; applying")
             _apply(session, plan)
             if plan.features is not None:
                 session.exit_noreboot()
@@ -264,11 +259,14 @@ def apply_plan(
                 msp.set_features(plan.features.applied_to(features_before))
                 session.enter()
             session.save()
+        except ParameterError:
+            _leave_without_saving(session, board, log)
+            raise
         except (ProtocolError, PortError) as exc:
-            _leave_without_saving(session, board)
+            _leave_without_saving(session, board, log)
             raise _with_context(
                 exc,
-                f"— nothing was saved: the FC rebooted and dropped every change (backup: {backup})",
+                f"— nothing was saved; the FC drops unsaved changes on reboot (backup: {backup})",
             ) from exc
     log("saved; waiting for the FC to reboot")
     board.wait_back()
@@ -277,7 +275,7 @@ def apply_plan(
         ChangeRow(name, scope, before.value, requested, after.get((scope, name), "?"))
         for (scope, name), (before, requested) in changes.items()
     ]
-    report = ChangeReport(backup, rows, plan.notes)
+    report = ChangeReport(backup, rows)
     if plan.features is not None and features_before is not None:
         expected = plan.features.applied_to(features_before)
         report.features = (features_before, features_after)
@@ -292,13 +290,17 @@ def _with_context(exc: WftoolError, context: str) -> WftoolError:
     return type(exc)(f"{exc} {context}")
 
 
-def _leave_without_saving(session: CliSession, board: Board) -> None:
-    """`exit` reboots the FC, which is Betaflight's only way to drop unsaved changes."""
+def _leave_without_saving(session: CliSession, board: Board, log: Log) -> None:
+    """`exit` reboots the FC, which is Betaflight's only way to drop unsaved changes.
+
+    Problems here are logged, not raised: the caller is already reporting the error that
+    made it leave.
+    """
     try:
         session.exit()
-    except (ProtocolError, PortError):
-        return  # the link is gone already; the board resets or is unreachable anyway
-    board.wait_back()
+        board.wait_back()
+    except WftoolError as exc:
+        log(f"after leaving the CLI without saving: {exc}")
 
 
 _Changes = dict[tuple[str | None, str], tuple[Setting, str]]
