@@ -17,10 +17,13 @@ import pytest
 from intelhex import IntelHex
 
 from tests.flash.standin import UNTOUCHED, StandinDfuUtil
+from wftool.cli import fc as fc_commands
+from wftool.cli import main
 from wftool.errors import FlashError, UsageError
 from wftool.flash.flasher import Manifest, find_manifest, flash_firmware
 from wftool.flash.image import load_image
 from wftool.msp import BoardInfo, BuildInfo, MspClient
+from wftool.params import apply_plan, plan_from_assignments
 from wftool.sitl import VirtualFC
 
 
@@ -69,6 +72,7 @@ def test_mismatched_firmware_is_refused_before_anything_happens(
 def test_flash_backs_up_reboots_writes_around_the_config_and_verifies(
     virtual_fc: VirtualFC, standin_dfu_util: StandinDfuUtil, tmp_path: Path
 ) -> None:
+    apply_plan(virtual_fc, plan_from_assignments(["p_pitch=55"]), tmp_path / "backups")
     build = _build_of(virtual_fc)
     hex_path = _image(tmp_path / "fw.hex", build)
     manifest = _manifest(
@@ -77,7 +81,12 @@ def test_flash_backs_up_reboots_writes_around_the_config_and_verifies(
     standin_dfu_util.configure(appear_after_lists=2)  # the bootloader enumerates late
     log: list[str] = []
     report = flash_firmware(
-        virtual_fc, manifest, backup_dir=tmp_path / "backups", force=True, log=log.append
+        virtual_fc,
+        manifest,
+        backup_dir=tmp_path / "backups",
+        force=True,
+        restore=True,
+        log=log.append,
     )
 
     assert any("flashing despite: built for STM32F7X2, the FC is SITL" in line for line in log)
@@ -91,7 +100,8 @@ def test_flash_backs_up_reboots_writes_around_the_config_and_verifies(
     assert flash[0x4000:0x8000] == bytes([UNTOUCHED]) * 0x4000  # config sector survived
     assert report.erased == {0, 2}
     assert report.after.build == build
-    assert virtual_fc.starts == 2
+    assert report.restored is not None
+    assert [(r.name, r.after) for r in report.restored.rows] == [("p_pitch", "55")]
 
 
 def test_verification_failure_says_so_and_keeps_the_backup(
@@ -178,3 +188,21 @@ def test_bad_manifest_is_a_usage_error(tmp_path: Path) -> None:
     path.write_text('{"target": "X"}')
     with pytest.raises(UsageError, match="bad build manifest"):
         Manifest.load(path)
+
+
+def test_wftool_flash_command_end_to_end(
+    virtual_fc: VirtualFC,
+    standin_dfu_util: StandinDfuUtil,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    monkeypatch.setattr(fc_commands, "find_board", lambda port, present=True: virtual_fc)
+    hex_path = _image(tmp_path / "fw.hex", _build_of(virtual_fc), "SITL", "STM32F7X2")
+    with pytest.raises(SystemExit) as exit_info:
+        main(["flash", str(hex_path), "--backup-dir", str(tmp_path / "b")])
+    out, err = capsys.readouterr()
+    assert exit_info.value.code == 0
+    assert out.splitlines()[0] == "flashed fw.hex; erased sectors 0, 2"
+    assert "Download" in err and "100%" in err  # the progress bars
+    assert "get_status failed after leave, as usual" in err
