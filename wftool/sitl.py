@@ -50,7 +50,7 @@ class VirtualFC:
         self.ready_timeout = ready_timeout
         self.log_path = self.workdir / "sitl.log"
         self.starts = 0
-        """How many times the process was started (a restart after a reset counts)."""
+        """Successful starts so far (a restart after a reset counts, a retried start not)."""
         self._process: subprocess.Popen[bytes] | None = None
         self._start_offset = 0
 
@@ -72,6 +72,7 @@ class VirtualFC:
             self._spawn()
             problem = self._uart1_problem()
             if not problem:
+                self.starts += 1
                 return
             self.stop()
         raise SitlError(f"{problem} ({START_ATTEMPTS} attempts; see {self.log_path})")
@@ -90,16 +91,20 @@ class VirtualFC:
                 )
             except OSError as exc:
                 raise SitlError(f"cannot run SITL binary {self.binary}: {exc.strerror}") from exc
-        self.starts += 1
 
     def _uart1_problem(self) -> str:
         """Why UART1 is not usable yet, or "" once a probe connection came and went."""
         listening = self._await_log(b"bind port 5761 for UART1", self.ready_timeout)
-        if listening is None or b"bind port 5761 for UART1 failed" in listening:
+        if listening is None:
+            return f"SITL did not open UART1 within {self.ready_timeout:.0f} s"
+        if b"bind port 5761 for UART1 failed" in listening:
             return f"SITL could not listen on TCP {TCP_BASE_PORT + 1}: another SITL here?"
         offset = self.log_path.stat().st_size
-        with socket.create_connection((LOOPBACK, TCP_BASE_PORT + 1), timeout=1):
-            accepted = self._await_log(b"[NEW]UART1", ACCEPT_TIMEOUT_S, offset)
+        try:
+            with socket.create_connection((LOOPBACK, TCP_BASE_PORT + 1), timeout=1):
+                accepted = self._await_log(b"[NEW]UART1", ACCEPT_TIMEOUT_S, offset)
+        except OSError as exc:
+            return f"SITL's UART1 refused a connection: {exc.strerror or exc}"
         if accepted is None:
             return "SITL's UART1 listens but never accepts"
         if self._await_log(b"[CLS]UART1", ACCEPT_TIMEOUT_S, offset) is None:
