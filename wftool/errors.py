@@ -40,3 +40,25 @@ class BuildError(WftoolError):
 
 class FlashError(WftoolError):
     """Flashing did not complete or did not verify."""
+
+
+class MspError(ProtocolError):
+    """An MSP exchange failed: no reply in time, a corrupt frame, or an error reply (`$M!`)."""
+
+
+class CliCommandError(ProtocolError):
+    """The flight controller's CLI rejected a command (`###ERROR IN …###` and friends)."""
+
+    def __init__(self, command: str, fc_error: str) -> None:
+        super().__init__(f"`{command}`: {fc_error}")
+        self.command = command
+        self.fc_error = fc_error
+        """What the FC printed, e.g. "INVALID VALUE (Allowed range: 0 - 1000)"."""
+
+
+class ParameterError(UsageError):
+    """Parameters the flight controller would reject; found before anything was changed."""
+
+
+class SitlError(WftoolError):
+    """The SITL (virtual flight controller) process would not start, or died."""

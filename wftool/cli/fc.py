@@ -1,7 +1,280 @@
-"""Commands: talking to a flight controller (set, config, backup, restore, flash, doctor)."""
+"""Commands: talking to a flight controller (set, config, configure, backup, flash, doctor…)."""
 
 from __future__ import annotations
 
-import click
+from pathlib import Path
 
-COMMANDS: list[click.Command] = []
+import click
+from rich.console import Console
+from rich.progress import BarColumn, Progress, TaskID, TextColumn
+from rich.table import Table
+
+from wftool import doctor as doctor_checks
+from wftool.board import Board, SerialBoard
+from wftool.errors import ProtocolError, WftoolError
+from wftool.flash import flasher
+from wftool.fsp_setup import DEFAULT_RATE_HZ, fsp_planner
+from wftool.msp import MspClient
+from wftool.params import (
+    ChangeReport,
+    Plan,
+    Planner,
+    apply_plan,
+    configuration_session,
+    plan_from_assignments,
+    plan_from_file,
+)
+
+console = Console(highlight=False, soft_wrap=True)
+status = Console(stderr=True, highlight=False, soft_wrap=True)
+
+
+def log(message: str) -> None:
+    status.print(f"[dim]wftool:[/] {message}")
+
+
+def find_board(port: str | None, *, present: bool = True) -> Board:
+    """The FC to talk to (tests substitute a virtual FC here)."""
+    return SerialBoard.find(port, present=present)
+
+
+port_option = click.option(
+    "--port",
+    "-p",
+    metavar="URL",
+    help="Serial device or pyserial URL of the FC [default: the only STM32 USB serial port].",
+)
+backup_dir_option = click.option(
+    "--backup-dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=Path("backups"),
+    show_default=True,
+    help="Where configuration backups are written.",
+)
+
+
+def _apply(port: str | None, plan: Plan | Planner, backup_dir: Path) -> None:
+    report = apply_plan(find_board(port), plan, backup_dir, log)
+    _print_report(report)
+    if report.mismatches:
+        raise ProtocolError(f"saved, but read back differs: {'; '.join(report.mismatches)}")
+
+
+def _print_report(report: ChangeReport) -> None:
+    table = Table(title="parameters (read back after save)", title_justify="left")
+    for column in ("setting", "scope", "before", "after", ""):
+        table.add_column(column)
+    for row in report.rows:
+        changed = "[green]ok[/]" if row.ok else f"[red]wanted {row.requested}[/]"
+        table.add_row(row.name, row.scope or "", row.before, row.after, changed)
+    if report.features:
+        before, after = report.features
+        mark = "[green]ok[/]" if report.features_ok else "[red]not persisted[/]"
+        table.add_row("features (MSP)", "", f"0x{before:08x}", f"0x{after:08x}", mark)
+    console.print(table)
+    console.print(f"backup of the previous configuration: {report.backup}")
+
+
+@click.command("set")
+@click.argument("assignments", nargs=-1, required=True, metavar="NAME=VALUE...")
+@port_option
+@backup_dir_option
+def set_(assignments: tuple[str, ...], port: str | None, backup_dir: Path) -> None:
+    """Change parameters safely: back up, validate all with the FC, apply, save, read back."""
+    _apply(port, plan_from_assignments(assignments), backup_dir)
+
+
+@click.group()
+def config() -> None:
+    """Apply configuration files."""
+
+
+@config.command("apply")
+@click.argument("file", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@port_option
+@backup_dir_option
+def config_apply(file: Path, port: str | None, backup_dir: Path) -> None:
+    """Apply FILE (a Betaflight CLI script such as `diff` output, or TOML name = value)."""
+    _apply(port, plan_from_file(file), backup_dir)
+
+
+@click.group()
+def configure() -> None:
+    """One-step setups."""
+
+
+@configure.command("fsp")
+@click.option("--uart", type=click.IntRange(1, 10), required=True, help="UART number for FSP.")
+@click.option("--baud", type=click.IntRange(9600), required=True, help="FSP baud rate.")
+@click.option(
+    "--rate",
+    type=click.IntRange(1),
+    default=DEFAULT_RATE_HZ,
+    show_default=True,
+    help="Target FSP sample rate (fsp_rate_hz).",
+)
+@port_option
+@backup_dir_option
+def configure_fsp(uart: int, baud: int, rate: int, port: str | None, backup_dir: Path) -> None:
+    """Set up FSP on a UART: port, MSP receiver, bidir DShot, RPM filters, rates."""
+    _apply(port, fsp_planner(uart, baud, rate), backup_dir)
+
+
+@click.command()
+@port_option
+@backup_dir_option
+def backup(port: str | None, backup_dir: Path) -> None:
+    """Save the FC's configuration (`diff all`) to a timestamped file. The FC reboots."""
+    board = find_board(port)
+    with configuration_session(board, backup_dir, log) as (session, _msp, path):
+        session.exit()
+    board.wait_back()
+    console.print(path)
+
+
+@click.command()
+@click.argument("file", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@port_option
+@backup_dir_option
+def restore(file: Path, port: str | None, backup_dir: Path) -> None:
+    """Restore a backup FILE through the same safe path as `set` (backs up first)."""
+    _apply(port, plan_from_file(file), backup_dir)
+
+
+@click.command()
+@port_option
+def info(port: str | None) -> None:
+    """Identify the FC over MSP: firmware, board, build."""
+    with MspClient.open(find_board(port).url) as msp:
+        fc = msp.identify()
+    console.print(
+        f"{fc.variant} {fc.version} (MSP API {fc.api})\n"
+        f"board {fc.board.board_name or '-'} target {fc.board.target_name} "
+        f"({fc.board.board_identifier}), flash bootloader: {fc.board.has_flash_bootloader}\n"
+        f"build {fc.build.git_revision} {fc.build.date} {fc.build.time}"
+    )
+
+
+class DfuProgress:
+    """A rich bar per dfu-util phase, shown from the first progress report on."""
+
+    def __init__(self) -> None:
+        self._bars: Progress | None = None
+        self._tasks: dict[str, TaskID] = {}
+
+    def update(self, phase: str, percent: int, _done: int) -> None:
+        if self._bars is None:
+            columns = (
+                TextColumn("{task.description}"),
+                BarColumn(),
+                TextColumn("{task.percentage:>3.0f}%"),
+            )
+            self._bars = Progress(*columns, console=status)
+            self._bars.start()
+        task = self._tasks.get(phase)
+        if task is None or self._bars.tasks[task].percentage > percent:  # a new region
+            task = self._tasks[phase] = self._bars.add_task(phase, total=100)
+        self._bars.update(task, completed=percent)
+
+    def close(self) -> None:
+        if self._bars is not None:
+            self._bars.stop()
+
+
+@click.command()
+@click.argument(
+    "firmware", required=False, type=click.Path(exists=True, dir_okay=False, path_type=Path)
+)
+@port_option
+@backup_dir_option
+@click.option(
+    "--build-dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=flasher.DEFAULT_BUILD_DIR,
+    show_default=True,
+    help="Where `wftool build` leaves <target>/manifest.json.",
+)
+@click.option("--force", is_flag=True, help="Flash even if board or MCU do not match.")
+@click.option("--full-erase", is_flag=True, help="Mass-erase first: wipes the configuration.")
+@click.option("--no-reboot", is_flag=True, help="The FC is already in DFU mode (no backup).")
+@click.option("--restore", is_flag=True, help="Replay the backup after flashing.")
+@click.option(
+    "--dfu-timeout",
+    type=float,
+    default=30.0,
+    show_default=True,
+    help="Seconds to wait for the DFU bootloader.",
+)
+def flash(
+    firmware: Path | None,
+    port: str | None,
+    backup_dir: Path,
+    build_dir: Path,
+    force: bool,
+    full_erase: bool,
+    no_reboot: bool,
+    restore: bool,
+    dfu_timeout: float,
+) -> None:
+    """Flash FIRMWARE (.hex, .bin or manifest.json; default: the last build for this FC)."""
+    board = find_board(port, present=not no_reboot)
+    bars = DfuProgress()
+    try:
+        report = flasher.flash_firmware(
+            board,
+            firmware,
+            backup_dir=backup_dir,
+            build_dir=build_dir,
+            force=force,
+            full_erase=full_erase,
+            no_reboot=no_reboot,
+            restore=restore,
+            dfu_timeout=dfu_timeout,
+            progress=bars.update,
+            log=log,
+        )
+    finally:
+        bars.close()
+    erased = ", ".join(str(s) for s in sorted(report.erased))
+    console.print(f"flashed {report.firmware.path.name}; erased sectors {erased}")
+    if report.backup:
+        console.print(f"configuration backup: {report.backup}")
+    if report.restored:
+        _print_report(report.restored)
+
+
+@click.command()
+@click.option("--fix", is_flag=True, help="Install the udev rules (needs root).")
+@click.option(
+    "--udev-rules-dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    help="Check and install rules here instead of the system directories.",
+)
+def doctor(fix: bool, udev_rules_dir: Path | None) -> None:
+    """Check the toolchain, dfu-util, serial ports, udev rules, groups, ModemManager."""
+    rules_dirs = (udev_rules_dir,) if udev_rules_dir else doctor_checks.SYSTEM_RULES_DIRS
+    if fix:
+        target = udev_rules_dir or doctor_checks.SYSTEM_RULES_DIRS[0]
+        for change in doctor_checks.install_udev_rules(target, reload=udev_rules_dir is None):
+            log(change)
+    checks = doctor_checks.run_checks(rules_dirs)
+    colour = {"ok": "green", "warn": "yellow", "fail": "red"}
+    for check in checks:
+        console.print(f"[{colour[check.status]}]{check.status:>4}[/] {check.name}: {check.detail}")
+        if check.status != "ok" and check.fix:
+            console.print(f"      fix: {check.fix}")
+    failed = [check.name for check in checks if check.status == "fail"]
+    if failed:
+        raise WftoolError(f"not ready: {', '.join(failed)}")
+
+
+COMMANDS: list[click.Command] = [
+    set_,
+    config,
+    configure,
+    backup,
+    restore,
+    info,
+    flash,
+    doctor,
+]

@@ -1,0 +1,208 @@
+"""`wftool flash` end to end: the real SITL plays the FC, a STAND-IN plays dfu-util.
+
+Real: identifying the FC over MSP, the `diff all` backup, the MSP reboot into the
+bootloader (SITL logs it and exits), and, after "flashing", the FC coming back and being
+asked over MSP which build it runs. Simulated: the USB bootloader (tests/flash/
+standin_dfu_util.py), and the board booting the written image — SITL restarts with its
+own build, so the success tests flash an image that carries SITL's build strings.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import pytest
+from intelhex import IntelHex
+
+from tests.flash.standin import UNTOUCHED, StandinDfuUtil
+from wftool.cli import fc as fc_commands
+from wftool.cli import main
+from wftool.errors import FlashError, UsageError
+from wftool.flash.flasher import Manifest, find_manifest, flash_firmware
+from wftool.flash.image import load_image
+from wftool.msp import BoardInfo, BuildInfo, MspClient
+from wftool.params import apply_plan, plan_from_assignments
+from wftool.sitl import VirtualFC
+
+
+def _build_of(fc: VirtualFC) -> BuildInfo:
+    with MspClient.open(fc.url) as msp:
+        return msp.build_info()
+
+
+def _image(path: Path, build: BuildInfo, *strings: str) -> Path:
+    """A two-segment image (vector table, firmware) holding `build`'s identity strings."""
+    image = IntelHex()
+    image.puts(0x0800_0000, bytes(range(256)) * 2)
+    names = (build.date, build.time, build.git_revision + "f2", *strings)
+    image.puts(0x0800_8000, b"\0" + b"\0".join(s.encode() for s in names) + b"\0" * 4096)
+    image.write_hex_file(str(path))
+    return path
+
+
+def _manifest(directory: Path, hex_path: Path, **fields: str) -> Path:
+    directory.mkdir(parents=True, exist_ok=True)
+    data = {
+        "target": "SPEEDYBEEF7V3",
+        "board": "SPEEDYBEEF7V3",
+        "mcu": "STM32F7X2",
+        "git_revision": "0000000",
+        "artifacts": {"hex": os.path.relpath(hex_path, directory)},
+    }
+    data.update(fields)
+    path = directory / "manifest.json"
+    path.write_text(json.dumps(data))
+    return path
+
+
+def test_mismatched_firmware_is_refused_before_anything_happens(
+    virtual_fc: VirtualFC, built_hex: Path, standin_dfu_util: StandinDfuUtil, tmp_path: Path
+) -> None:
+    with pytest.raises(
+        FlashError, match=r"refusing to flash .*the image does not name the FC's target SITL"
+    ):
+        flash_firmware(virtual_fc, built_hex, backup_dir=tmp_path / "backups")
+    assert virtual_fc.running and virtual_fc.starts == 1
+    assert not (tmp_path / "backups").exists()
+    assert standin_dfu_util.calls() == []
+
+
+def test_flash_backs_up_reboots_writes_around_the_config_and_verifies(
+    virtual_fc: VirtualFC, standin_dfu_util: StandinDfuUtil, tmp_path: Path
+) -> None:
+    apply_plan(virtual_fc, plan_from_assignments(["p_pitch=55"]), tmp_path / "backups")
+    build = _build_of(virtual_fc)
+    hex_path = _image(tmp_path / "fw.hex", build)
+    manifest = _manifest(
+        tmp_path / "build" / "SPEEDYBEEF7V3", hex_path, git_revision=build.git_revision + "f2"
+    )
+    standin_dfu_util.configure(appear_after_lists=2)  # the bootloader enumerates late
+    log: list[str] = []
+    report = flash_firmware(
+        virtual_fc,
+        manifest,
+        backup_dir=tmp_path / "backups",
+        force=True,
+        restore=True,
+        log=log.append,
+    )
+
+    assert any("flashing despite: built for STM32F7X2, the FC is SITL" in line for line in log)
+    assert report.backup is not None and "diff all" not in report.backup.read_text()
+    assert "defaults nosave" in report.backup.read_text()
+    assert b"[system]ResetToBootloader!" in virtual_fc.log_path.read_bytes()
+    downloads = [call for call in standin_dfu_util.calls() if "-D" in call]
+    assert [call[call.index("-s") + 1] for call in downloads] == ["0x08000000", "0x08008000:leave"]
+    flash = standin_dfu_util.flash()
+    assert flash[:512] == bytes(range(256)) * 2
+    assert flash[0x4000:0x8000] == bytes([UNTOUCHED]) * 0x4000  # config sector survived
+    assert report.erased == {0, 2}
+    assert report.after.build == build
+    assert report.restored is not None
+    assert [(r.name, r.after) for r in report.restored.rows] == [("p_pitch", "55")]
+
+
+def test_verification_failure_says_so_and_keeps_the_backup(
+    virtual_fc: VirtualFC, built_hex: Path, standin_dfu_util: StandinDfuUtil, tmp_path: Path
+) -> None:
+    # A real STM32F7X2 build; the FC that comes back (SITL) runs a different build.
+    with pytest.raises(FlashError) as error:
+        flash_firmware(virtual_fc, built_hex, backup_dir=tmp_path / "backups", force=True)
+    message = str(error.value)
+    assert "verification failed: the FC runs" in message
+    backups = list((tmp_path / "backups").iterdir())
+    assert len(backups) == 1 and f"configuration backup: {backups[0]}" in message
+    assert standin_dfu_util.flash()[0x4000:0x8000] == bytes([UNTOUCHED]) * 0x4000
+
+
+def test_write_failure_names_the_backup_and_the_next_step(
+    virtual_fc: VirtualFC, standin_dfu_util: StandinDfuUtil, tmp_path: Path
+) -> None:
+    hex_path = _image(tmp_path / "fw.hex", _build_of(virtual_fc), "STM32F7X2")
+    standin_dfu_util.configure(fail_at_percent=30)
+    with pytest.raises(FlashError) as error:
+        flash_firmware(virtual_fc, hex_path, backup_dir=tmp_path / "b", force=True)
+    message = str(error.value)
+    assert message.startswith("writing the firmware: dfu-util failed writing at 0x08008000")
+    assert "Device is unable to write memory" in message
+    assert f"retry with `wftool flash --no-reboot {hex_path}`" in message
+    assert "configuration backup: " in message
+
+
+def test_no_reboot_flashes_a_board_already_in_dfu(
+    sitl_binary: Path, standin_dfu_util: StandinDfuUtil, tmp_path: Path
+) -> None:
+    fc = VirtualFC(sitl_binary, tmp_path / "sitl")
+    with fc:
+        build = _build_of(fc)
+    # The FC sits in its bootloader (SITL not running); flashing starts it again.
+    hex_path = _image(tmp_path / "fw.hex", build, "STM32F7X2")
+    try:
+        report = flash_firmware(fc, hex_path, backup_dir=tmp_path / "b", no_reboot=True)
+    finally:
+        fc.stop()
+    assert report.backup is None and report.before is None
+    assert report.after.build == build
+
+
+def test_no_reboot_with_full_erase_needs_force(tmp_path: Path) -> None:
+    hex_path = _image(
+        tmp_path / "fw.hex", BuildInfo("Jan 01 2000", "00:00:00", "abcdef0"), "STM32F7X2"
+    )
+    with pytest.raises(FlashError, match="without a backup; add --force"):
+        flash_firmware(
+            VirtualFC(tmp_path, tmp_path),
+            hex_path,
+            backup_dir=tmp_path,
+            no_reboot=True,
+            full_erase=True,
+        )
+
+
+def test_a_bin_over_the_config_sector_needs_full_erase(built_hex: Path, tmp_path: Path) -> None:
+    binary = tmp_path / "fw.bin"
+    load_image(built_hex).tobinfile(str(binary), start=0x0800_0000)
+    with pytest.raises(FlashError, match="covers the config sector at 0x08004000"):
+        flash_firmware(VirtualFC(tmp_path, tmp_path), binary, backup_dir=tmp_path, no_reboot=True)
+
+
+def test_default_firmware_is_the_newest_build_for_this_board(tmp_path: Path) -> None:
+    hex_path = tmp_path / "fw.hex"
+    hex_path.write_text("")
+    other = _manifest(tmp_path / "build" / "OTHER", hex_path, board="OTHERBOARD")
+    older = _manifest(tmp_path / "build" / "OLD", hex_path)
+    newer = _manifest(tmp_path / "build" / "NEW", hex_path)
+    os.utime(older, (1, 1))
+    board = BoardInfo("S7X2", 0, 0, "STM32F7X2", "SPEEDYBEEF7V3", "SPBE", 0)
+    assert find_manifest(tmp_path / "build", board) == Manifest.load(newer)
+    generic = BoardInfo("S7X2", 0, 0, "STM32F7X2", "", "", 0)  # no board name: match the MCU
+    assert find_manifest(tmp_path / "build", generic) is not None
+    assert other.exists()
+    assert find_manifest(tmp_path / "nothing", board) is None
+
+
+def test_bad_manifest_is_a_usage_error(tmp_path: Path) -> None:
+    path = tmp_path / "manifest.json"
+    path.write_text('{"target": "X"}')
+    with pytest.raises(UsageError, match="bad build manifest"):
+        Manifest.load(path)
+
+
+def test_wftool_flash_command_end_to_end(
+    virtual_fc: VirtualFC,
+    standin_dfu_util: StandinDfuUtil,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    monkeypatch.setattr(fc_commands, "find_board", lambda port, present=True: virtual_fc)
+    hex_path = _image(tmp_path / "fw.hex", _build_of(virtual_fc), "SITL", "STM32F7X2")
+    with pytest.raises(SystemExit) as exit_info:
+        main(["flash", str(hex_path), "--backup-dir", str(tmp_path / "b")])
+    out, err = capsys.readouterr()
+    assert exit_info.value.code == 0
+    assert out.splitlines()[0] == "flashed fw.hex; erased sectors 0, 2"
+    assert "Download" in err and "100%" in err  # the progress bars
+    assert "get_status failed after leave, as usual" in err

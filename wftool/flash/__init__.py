@@ -1,0 +1,1 @@
+"""Flashing Betaflight onto STM32 flight controllers over USB DFU (dfu-util)."""

@@ -1,0 +1,282 @@
+"""`wftool flash`: identify, back up, reboot to DFU, write, confirm — config sector untouched.
+
+Order matters: nothing is erased before the configuration backup exists, and every failure
+after that names the backup and the next step. Success means the firmware that comes back
+reports a build (date, time, git revision) that is in the image just written.
+"""
+
+from __future__ import annotations
+
+import json
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+from intelhex import IntelHex
+
+from wftool.board import Board
+from wftool.errors import FlashError, UsageError, WftoolError
+from wftool.flash import dfu
+from wftool.flash.image import (
+    MCU_FLASH,
+    McuFlash,
+    contains_string,
+    erased_sectors,
+    load_image,
+    write_regions,
+)
+from wftool.msp import BoardInfo, BuildInfo, FcIdentity, MspClient, RebootMode
+from wftool.params import (
+    ChangeReport,
+    Log,
+    apply_plan,
+    configuration_session,
+    plan_from_file,
+    quiet,
+)
+
+DEFAULT_BUILD_DIR = Path("build")
+
+
+@dataclass(frozen=True)
+class Manifest:
+    """`build/<target>/manifest.json`, written by `wftool build`."""
+
+    path: Path
+    target: str
+    board: str
+    mcu: str
+    git_revision: str
+    hex: Path | None
+    bin: Path | None
+
+    @classmethod
+    def load(cls, path: Path) -> Manifest:
+        try:
+            data = json.loads(path.read_text())
+            artifacts = data.get("artifacts", {})
+            return cls(
+                path=path,
+                target=data["target"],
+                board=data["board"],
+                mcu=data["mcu"],
+                git_revision=data["git_revision"],
+                hex=path.parent / artifacts["hex"] if artifacts.get("hex") else None,
+                bin=path.parent / artifacts["bin"] if artifacts.get("bin") else None,
+            )
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise UsageError(f"bad build manifest {path}: {exc!r}") from exc
+
+
+@dataclass
+class Firmware:
+    path: Path
+    image: IntelHex
+    manifest: Manifest | None
+
+    def compatibility_problems(self, board: BoardInfo) -> list[str]:
+        """Why this image should not go on `board` (empty if it fits)."""
+        problems = []
+        if self.manifest:
+            if self.manifest.mcu != board.target_name:
+                problems.append(f"built for {self.manifest.mcu}, the FC is {board.target_name}")
+            if board.board_name and self.manifest.board != board.board_name:
+                problems.append(
+                    f"built for board {self.manifest.board}, the FC is {board.board_name}"
+                )
+            return problems
+        for kind, name in (("target", board.target_name), ("board", board.board_name)):
+            if name and not contains_string(self.image, name):
+                problems.append(f"the image does not name the FC's {kind} {name}")
+        return problems
+
+    def is_running(self, build: BuildInfo) -> bool:
+        """Whether the FC's reported build is this image."""
+        if self.manifest and not self.manifest.git_revision.startswith(build.git_revision):
+            return False
+        return (
+            contains_string(self.image, build.date)
+            and contains_string(self.image, build.time)
+            and contains_string(self.image, build.git_revision, whole=False)
+        )
+
+    def mcu_flash(self, board: BoardInfo | None) -> McuFlash:
+        """Flash facts for this image's MCU: named by the manifest, the FC, or the image."""
+        names = [self.manifest.mcu] if self.manifest else []
+        names += [board.target_name] if board else []
+        names += [name for name in MCU_FLASH if contains_string(self.image, name)]
+        for name in names:
+            if name in MCU_FLASH:
+                return MCU_FLASH[name]
+        raise FlashError(
+            f"wftool knows the flash layout of {', '.join(MCU_FLASH)} only "
+            f"(this is for {', '.join(names) or 'an unknown MCU'})"
+        )
+
+
+def find_manifest(build_dir: Path, board: BoardInfo) -> Manifest | None:
+    """The newest build output for this FC: same board name, or same MCU for boards without."""
+    manifests = sorted(
+        (Manifest.load(p) for p in build_dir.glob("*/manifest.json")),
+        key=lambda m: m.path.stat().st_mtime,
+        reverse=True,
+    )
+    for manifest in manifests:
+        if (
+            (manifest.board == board.board_name)
+            if board.board_name
+            else manifest.mcu == board.target_name
+        ):
+            return manifest
+    return None
+
+
+def resolve_firmware(path: Path | None, build_dir: Path, board: BoardInfo | None) -> Firmware:
+    """FIRMWARE as given (manifest .json, .hex, .bin), or the last build for this board."""
+    manifest = None
+    if path is None:
+        if board is None:
+            raise UsageError(
+                "name the FIRMWARE to flash: without the FC's answer (--no-reboot) "
+                "wftool cannot pick its build"
+            )
+        manifest = find_manifest(build_dir, board)
+        if manifest is None:
+            raise UsageError(
+                f"no `wftool build` output for {board.board_name or board.target_name} in "
+                f"{build_dir}/; build it or name the FIRMWARE"
+            )
+    elif path.suffix.lower() == ".json":
+        manifest = Manifest.load(path)
+    if manifest is not None:
+        path = manifest.hex or manifest.bin
+        if path is None:
+            raise UsageError(f"{manifest.path} lists no hex or bin artifact")
+    assert path is not None
+    return Firmware(path, load_image(path), manifest)
+
+
+@dataclass
+class FlashReport:
+    firmware: Firmware
+    backup: Path | None
+    erased: set[int]
+    before: FcIdentity | None
+    after: FcIdentity
+    restored: ChangeReport | None
+
+
+def flash_firmware(
+    board: Board,
+    firmware_path: Path | None,
+    *,
+    backup_dir: Path,
+    build_dir: Path = DEFAULT_BUILD_DIR,
+    force: bool = False,
+    full_erase: bool = False,
+    no_reboot: bool = False,
+    restore: bool = False,
+    dfu_timeout: float = 30.0,
+    boot_timeout: float = 30.0,
+    progress: dfu.Progress | None = None,
+    log: Log = quiet,
+) -> FlashReport:
+    """The whole `wftool flash` flow; see the module docstring."""
+    before = None
+    if not no_reboot:
+        with MspClient.open(board.url) as msp:
+            before = msp.identify()
+    firmware = resolve_firmware(firmware_path, build_dir, before.board if before else None)
+    if firmware.manifest:
+        built = firmware.manifest
+        log(f"firmware: {firmware.path} ({built.target} at {built.git_revision})")
+    else:
+        log(f"firmware: {firmware.path}")
+    if before and (problems := firmware.compatibility_problems(before.board)):
+        if not force:
+            raise FlashError(
+                f"refusing to flash {firmware.path.name}: {'; '.join(problems)} (--force overrides)"
+            )
+        log(f"--force: flashing despite: {'; '.join(problems)}")
+    mcu = firmware.mcu_flash(before.board if before else None)
+    regions = write_regions(firmware.image, mcu.layout)
+    erased = erased_sectors(regions, mcu.layout)
+    if mcu.config_sector in erased and not full_erase:
+        raise FlashError(
+            f"{firmware.path.name} covers the config sector at 0x{mcu.config_address:08x} "
+            "(a .bin does; use the .hex), or pass --full-erase to wipe the configuration"
+        )
+    if no_reboot and full_erase and not force:
+        raise FlashError(
+            "--full-erase with --no-reboot erases the configuration without a "
+            "backup; add --force if that is what you want"
+        )
+
+    backup = None
+    if before is not None:
+        with configuration_session(board, backup_dir, log) as (session, msp, backup):
+            session.exit_noreboot()
+            mode = (
+                RebootMode.BOOTLOADER_FLASH
+                if before.board.has_flash_bootloader
+                else RebootMode.BOOTLOADER_ROM
+            )
+            log(f"rebooting the FC into its {mode.name.lower().replace('_', ' ')}")
+            msp.reboot(mode)
+    next_step = _next_step(firmware.path, backup)
+
+    stage = "waiting for the DFU bootloader"
+    try:
+        device = dfu.wait_for_device(dfu_timeout)
+        if device.layout and device.layout != mcu.layout and not force:
+            raise FlashError(
+                f"the bootloader reports flash {device.name!r}, not the layout "
+                "of the firmware's MCU (--force overrides)"
+            )
+        stage = "writing the firmware"
+        with tempfile.TemporaryDirectory(prefix="wftool-flash-") as scratch:
+            for index, region in enumerate(regions):
+                last = index == len(regions) - 1
+                log(
+                    f"writing {len(region.data)} bytes at 0x{region.address:08x} "
+                    f"({index + 1}/{len(regions)})"
+                )
+                region_file = Path(scratch) / f"region-{index}.bin"
+                region_file.write_bytes(region.data)
+                result = dfu.download(
+                    device,
+                    region.address,
+                    region_file,
+                    leave=last,
+                    mass_erase=full_erase and index == 0,
+                    progress=progress,
+                )
+        if result.status_error_after_leave:
+            log("dfu-util: get_status failed after leave, as usual (the board had already reset)")
+        stage = "waiting for the new firmware to start"
+        board.wait_back(boot_timeout)
+        with MspClient.open(board.url) as msp:
+            after = msp.identify()
+        if not firmware.is_running(after.build):
+            build = after.build
+            raise FlashError(
+                f"verification failed: the FC runs {build.git_revision} built {build.date} "
+                f"{build.time}, which is not {firmware.path.name}"
+            )
+    except WftoolError as exc:
+        raise FlashError(f"{stage}: {exc} — {next_step}") from exc
+    log(f"the FC runs {after.build.git_revision} built {after.build.date} {after.build.time}")
+    restored = None
+    if restore and backup is not None:
+        log(f"restoring the configuration from {backup}")
+        restored = apply_plan(board, plan_from_file(backup), backup_dir, log)
+    return FlashReport(firmware, backup, erased, before, after, restored)
+
+
+def _next_step(firmware: Path, backup: Path | None) -> str:
+    saved = (
+        f"configuration backup: {backup} (`wftool restore {backup}`)"
+        if backup
+        else "no configuration backup was taken (--no-reboot)"
+    )
+    return f"{saved}; if the FC stays in DFU, retry with `wftool flash --no-reboot {firmware}`"
