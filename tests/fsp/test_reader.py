@@ -66,7 +66,7 @@ def test_port_that_vanishes_raises_port_error(server):
         conn.close()
 
     threading.Thread(target=fc).start()
-    with FspReader(url_of(server)) as reader, pytest.raises(PortError, match="went away"):
+    with FspReader(url_of(server)) as reader, pytest.raises(PortError, match="lost connection"):
         for _ in range(100):
             reader.read(0.5)
 

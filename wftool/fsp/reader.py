@@ -23,6 +23,7 @@ from wftool.errors import PortError
 from wftool.fsp.decoder import StateDecoder
 from wftool.fsp.encoder import CommandSender
 from wftool.fsp.packets import SensorFrame, StatePacket
+from wftool.transport import open_port, port_errors
 
 DEFAULT_BAUDRATE = 2_000_000
 _READ_SIZE = 1 << 16
@@ -48,10 +49,7 @@ class FspReader:
         self._fd: int | None = None
 
     def open(self) -> FspReader:
-        try:
-            port = serial.serial_for_url(self.url, baudrate=self.baudrate, timeout=0)
-        except (serial.SerialException, OSError, ValueError) as exc:
-            raise PortError(f"cannot open {self.url}: {exc}") from None
+        port = open_port(self.url, self.baudrate, timeout=0)  # reads never block: see read_bytes
         self._port = port
         try:
             self._fd = port.fileno()
@@ -84,15 +82,13 @@ class FspReader:
     def read_bytes(self, timeout: float) -> bytes:
         """What arrived within `timeout` seconds (returns as soon as anything did)."""
         port = self.port
-        try:
+        with port_errors(self.url):
             if self._fd is not None:
                 ready, _, _ = select.select([self._fd], [], [], timeout)
                 return port.read(_READ_SIZE) if ready else b""
             port.timeout = timeout
             data = port.read(1)
             return data + port.read(port.in_waiting) if data else data
-        except (serial.SerialException, OSError) as exc:
-            raise PortError(f"{self.url} went away: {exc}") from None
 
     def read(self, timeout: float = 0.1) -> list[StatePacket]:
         """Packets completed by the bytes that arrive within `timeout` (maybe none)."""
@@ -112,7 +108,5 @@ class FspReader:
     def send_command(self, rc: Sequence[int]) -> None:
         """Send RC values (roll, pitch, yaw, throttle, aux3, aux4) to the FC."""
         wire = self._sender.encode(rc)
-        try:
+        with port_errors(self.url):
             self.port.write(wire)
-        except (serial.SerialException, OSError) as exc:
-            raise PortError(f"{self.url} went away: {exc}") from None
