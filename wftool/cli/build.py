@@ -2,6 +2,279 @@
 
 from __future__ import annotations
 
-import click
+import sys
+from collections.abc import Callable
+from contextlib import AbstractContextManager
+from pathlib import Path
+from typing import Any
 
-COMMANDS: list[click.Command] = []
+import click
+from rich.console import Console
+from rich.table import Table
+
+from wftool.build import (
+    BuildFlags,
+    BuildOptions,
+    BuildResult,
+    build,
+    builder,
+    find_project,
+    patches,
+    tree,
+)
+from wftool.build.project import PROJECT_ENV, Project, exclusive
+from wftool.build.targets import resolve_target
+
+# Piped output (CI logs, scripts) gets room for full paths instead of 80 folded columns.
+out = Console(highlight=False, width=None if sys.stdout.isatty() else 200)
+err = Console(stderr=True, highlight=False)
+
+project_option = click.option(
+    "--project",
+    "project_dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    help=f"The wftool checkout (default: ${PROJECT_ENV}, else the one around the cwd).",
+)
+
+
+def project_from(project_dir: Path | None) -> Project:
+    """The project --project names, or the one found from the environment/cwd."""
+    return find_project(project_dir)
+
+
+def locked(project: Project) -> AbstractContextManager[None]:
+    """The checkout's lock, saying so when another wftool run holds it."""
+    return exclusive(project, lambda: err.print("waiting for another wftool run"))
+
+
+def build_options(function: Callable[..., Any]) -> Callable[..., Any]:
+    """The options of `wftool build`, shared with `wftool bench build`."""
+    options = [
+        click.option(
+            "--fsp-rate",
+            type=click.IntRange(50, 4000),  # the firmware's FSP_RATE_HZ_MIN..MAX
+            metavar="HZ",
+            help="Default of the firmware's fsp_rate_hz setting (-DFSP_RATE_HZ_DEFAULT).",
+        ),
+        click.option(
+            "--mavlink-tunnel",
+            is_flag=True,
+            help="Build with the FSP MAVLink tunnel (-DUSE_FSP_MAVLINK_TUNNEL).",
+        ),
+        click.option(
+            "--define",
+            "defines",
+            multiple=True,
+            metavar="NAME[=VALUE]",
+            help="Extra -D for the compiler; repeatable.",
+        ),
+        click.option("--debug", is_flag=True, help="Debug build (Betaflight's DEBUG=GDB: -Og)."),
+        click.option("-j", "--jobs", type=click.IntRange(1), help="Parallel jobs (default: CPUs)."),
+        click.option(
+            "--toolchain",
+            "toolchain_dir",
+            type=click.Path(file_okay=False, exists=True, path_type=Path),
+            help="Directory of arm-none-eabi-gcc (or its parent with bin/).",
+        ),
+        click.option(
+            "--strict-toolchain",
+            is_flag=True,
+            help="Fail instead of warning when gcc is not the version Betaflight names.",
+        ),
+        click.option("--no-ccache", is_flag=True, help="Compile without ccache."),
+        project_option,
+    ]
+    for option in reversed(options):
+        function = option(function)
+    return function
+
+
+def options_from(
+    fsp_rate: int | None,
+    mavlink_tunnel: bool,
+    defines: tuple[str, ...],
+    debug: bool,
+    jobs: int | None,
+    toolchain_dir: Path | None,
+    strict_toolchain: bool,
+    no_ccache: bool,
+    **extra: Any,
+) -> BuildOptions:
+    """BuildOptions from the values of `build_options`."""
+    return BuildOptions(
+        flags=BuildFlags(fsp_rate, mavlink_tunnel, defines, debug),
+        jobs=jobs,
+        toolchain_dir=toolchain_dir,
+        strict_toolchain=strict_toolchain,
+        ccache=not no_ccache,
+        **extra,
+    )
+
+
+@click.command("build")
+@click.argument("target")
+@build_options
+@click.option(
+    "--clean",
+    is_flag=True,
+    help="Discard uncommitted changes and unexported commits in betaflight/.",
+)
+@click.option("--rebuild", is_flag=True, help="Recompile everything for this configuration.")
+def build_command(
+    target: str, project_dir: Path | None, clean: bool, rebuild: bool, **options: Any
+) -> None:
+    """Build firmware for TARGET (sitl, speedybeef7v3, any board in targets/configs/).
+
+    Fetches the pinned Betaflight tree if needed, applies patches/, compiles, and writes
+    build/<target>/ with the firmware and manifest.json.
+    """
+    result = build(
+        project_from(project_dir),
+        target,
+        options_from(clean=clean, rebuild=rebuild, **options),
+        err,
+    )
+    print_summary(result)
+
+
+def print_summary(result: BuildResult) -> None:
+    """The table at the end of a build: target, size, flash %, RAM %, path."""
+    data = result.manifest
+    usage = data.get("usage") or {}
+    table = Table(box=None, pad_edge=False)
+    for column in ("target", "size", "flash", "RAM"):
+        table.add_column(column, justify="left" if column == "target" else "right")
+    table.add_column("firmware", overflow="fold")
+    artifacts = data["artifacts"]
+    sized = result.out_dir / artifacts.get("bin", artifacts.get("exe", artifacts["elf"]))
+    table.add_row(
+        data["target"],
+        f"{sized.stat().st_size / 1024:.1f} KiB",
+        _percent(usage.get("flash_bytes"), usage.get("flash_total")),
+        _percent(usage.get("ram_bytes"), usage.get("ram_total")),
+        _shown_path(result.firmware),
+    )
+    state = (
+        "up to date"
+        if result.up_to_date
+        else (f"built in {result.seconds:.1f} s, {result.compiled} units compiled")
+    )
+    out.print(f"{data['target']}: {state} (git revision {data['git_revision']})")
+    out.print(table)
+
+
+def _percent(used: int | None, total: int | None) -> str:
+    if used is None:
+        return "-"
+    return f"{100 * used / total:.1f} %" if total else f"{used / 1024:.0f} KiB"
+
+
+def _shown_path(path: Path) -> str:
+    try:
+        return str(path.relative_to(Path.cwd()))
+    except ValueError:
+        return str(path)
+
+
+@click.group("patches")
+def patches_group() -> None:
+    """The Betaflight patch series in patches/ (status, apply, reset, export)."""
+
+
+@patches_group.command("status")
+@project_option
+def patches_status(project_dir: Path | None) -> None:
+    """Show the pin, HEAD, and which patches betaflight/ contains."""
+    project = project_from(project_dir)
+    current = patches.status(project)
+    out.print(f"pin       {current.pin}")
+    out.print(f"HEAD      {current.head}")
+    out.print(f"state     {current.state}" + (" (uncommitted changes)" if current.dirty else ""))
+    for patch, applied in zip(current.patches, current.applied, strict=True):
+        out.print(f"  {'applied' if applied else 'missing':8} {patch.name}  {patch.sha256[:12]}")
+    if not current.patches:
+        out.print("  (patches/ holds no *.patch files)")
+    for path in current.dirty:
+        out.print(f"  dirty    {path}")
+    if current.problem:
+        out.print(f"[red]the series does not apply:[/] {current.problem}")
+
+
+@patches_group.command("apply")
+@click.option(
+    "--target",
+    default="sitl",
+    show_default=True,
+    help="Target whose files to check out when betaflight/ must be fetched first.",
+)
+@click.option("--force", is_flag=True, help="Discard uncommitted changes and unexported commits.")
+@project_option
+def patches_apply(target: str, force: bool, project_dir: Path | None) -> None:
+    """Put betaflight/ at the pin plus the series (a no-op when it already is)."""
+    project = project_from(project_dir)
+    with locked(project):
+        tree.ensure_tree(project, resolve_target(project, target), clean=force)
+        changed = patches.apply(project, force=force)
+    count = len(patches.series(project))
+    out.print(
+        f"{'applied' if changed else 'already applied:'} {count} patch(es) "
+        f"-> {tree.head(project)[:12]}"
+    )
+
+
+@patches_group.command("reset")
+@click.option("--force", is_flag=True, help="Discard uncommitted changes and unexported commits.")
+@project_option
+def patches_reset(force: bool, project_dir: Path | None) -> None:
+    """Return betaflight/ to the pristine pinned commit."""
+    project = project_from(project_dir)
+    with locked(project):
+        changed = patches.reset(project, force=force)
+    out.print(f"{'reset to' if changed else 'already at'} the pin {tree.head(project)[:12]}")
+
+
+@patches_group.command("export")
+@project_option
+def patches_export(project_dir: Path | None) -> None:
+    """Rewrite patches/ from the commits on top of the pin in betaflight/."""
+    project = project_from(project_dir)
+    with locked(project):
+        names = patches.export(project)
+    out.print(f"exported {len(names)} patch(es) to patches/")
+    for name in names:
+        out.print(f"  {name}")
+
+
+@click.group("toolchain")
+def toolchain_group() -> None:
+    """The ARM GNU toolchain (install, show)."""
+
+
+@toolchain_group.command("install")
+@click.option("--sha256", metavar="HEX", help="Expected SHA-256 when wftool pins none.")
+@click.option("--url", help="Download from here instead (a mirror of the same archive).")
+@project_option
+def toolchain_install(sha256: str | None, url: str | None, project_dir: Path | None) -> None:
+    """Download, verify and unpack the toolchain release the pinned Betaflight names."""
+    project = None if url else project_from(project_dir)
+    directory = builder.install_toolchain(project, url=url, sha256=sha256, console=err)
+    out.print(f"toolchain ready: {directory}")
+
+
+@toolchain_group.command("show")
+@click.argument("target", default="speedybeef7v3")
+@click.option(
+    "--toolchain", "toolchain_dir", type=click.Path(file_okay=False, exists=True, path_type=Path)
+)
+@project_option
+def toolchain_show(target: str, toolchain_dir: Path | None, project_dir: Path | None) -> None:
+    """Show which compiler a build of TARGET would use, and the version it should be."""
+    project = project_from(project_dir)
+    resolved = resolve_target(project, target)
+    tree.ensure_tree(project, resolved)
+    compiler = builder.find_toolchain(project, resolved, BuildOptions(toolchain_dir=toolchain_dir))
+    verdict = "ok" if compiler.matches else f"MISMATCH (tree asks for {compiler.required})"
+    out.print(f"{compiler.gcc}  gcc {compiler.version}  {verdict}")
+
+
+COMMANDS: list[click.Command] = [build_command, patches_group, toolchain_group]
