@@ -1,20 +1,28 @@
-"""Shared fixtures: the repo's fixed inputs and the virtual flight controller (SITL).
+"""Shared fixtures: the repo's fixed inputs, the firmware built from a fresh clone, and the
+virtual flight controller (the patched Betaflight SITL).
 
-Run SITL tests in a private network namespace (SITL binds fixed ports):
-    unshare -n sh -c 'ip link set lo up && .venv/bin/pytest'
+The firmware fixtures clone this repository's HEAD (commit before running them locally),
+fetch the pinned Betaflight tree and build once per session; they skip, with the reason,
+only where the Betaflight repository cannot be reached. WFTOOL_SITL_BINARY points the SITL
+tests at an existing binary instead. SITL binds fixed ports: to run two test sessions at
+once, give each its own network namespace (`unshare -n sh -c 'ip link set lo up && …'`).
 """
 
 from __future__ import annotations
 
 import os
+import subprocess
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
+from wftool.build import BuildOptions, BuildResult, build
+from wftool.build.project import Project
 from wftool.sitl import VirtualFC
 
 REPO = Path(__file__).resolve().parent.parent
+BUILD_JOBS = min(os.cpu_count() or 1, 2)
 
 
 @pytest.fixture(scope="session")
@@ -24,12 +32,40 @@ def vectors_dir() -> Path:
 
 
 @pytest.fixture(scope="session")
-def sitl_binary() -> Path:
-    """The SITL binary from WFTOOL_SITL_BINARY; tests needing it skip without it."""
+def fresh_clone(tmp_path_factory: pytest.TempPathFactory) -> Project:
+    """A fresh `git clone` of this repository, with the submodule not initialised."""
+    if not (REPO / ".git").exists():
+        pytest.skip("not running from a git checkout of wftool")
+    url = _git(REPO, "config", "-f", ".gitmodules", "submodule.betaflight.url")
+    reachable = subprocess.run(
+        ["git", "ls-remote", "--exit-code", url, "HEAD"], capture_output=True, timeout=120
+    )
+    if reachable.returncode != 0:
+        pytest.skip(f"Betaflight repository {url} unreachable")
+    root = tmp_path_factory.mktemp("clone") / "wftool"
+    _git(REPO, "clone", "-q", str(REPO), str(root))
+    return Project(root)
+
+
+@pytest.fixture(scope="session")
+def sitl_build(fresh_clone: Project) -> BuildResult:
+    """The first build of the session: fetches the tree, applies the series, builds SITL."""
+    return build(fresh_clone, "sitl", BuildOptions(jobs=BUILD_JOBS))
+
+
+@pytest.fixture(scope="session")
+def board_build(fresh_clone: Project, sitl_build: BuildResult) -> BuildResult:
+    """speedybeef7v3 in the same clone (widens the sparse checkout to STM32F7)."""
+    return build(fresh_clone, "speedybeef7v3", BuildOptions(jobs=BUILD_JOBS))
+
+
+@pytest.fixture(scope="session")
+def sitl_binary(request: pytest.FixtureRequest) -> Path:
+    """The patched SITL: WFTOOL_SITL_BINARY if set, else this session's build."""
     path = os.environ.get("WFTOOL_SITL_BINARY")
-    if not path:
-        pytest.skip("WFTOOL_SITL_BINARY is not set (path to a betaflight_SITL binary)")
-    return Path(path)
+    if path:
+        return Path(path)
+    return request.getfixturevalue("sitl_build").firmware
 
 
 @pytest.fixture
@@ -37,3 +73,9 @@ def virtual_fc(sitl_binary: Path, tmp_path: Path) -> Iterator[VirtualFC]:
     """A freshly started SITL with an empty configuration, stopped after the test."""
     with VirtualFC(sitl_binary, tmp_path / "sitl") as fc:
         yield fc
+
+
+def _git(cwd: Path, *args: str) -> str:
+    return subprocess.run(
+        ["git", *args], cwd=cwd, check=True, capture_output=True, text=True
+    ).stdout.strip()

@@ -36,8 +36,8 @@ def test_fc_errors_carry_the_fc_text_and_allowed_range(virtual_fc: VirtualFC) ->
     session = CliSession.open(virtual_fc.url)
     try:
         with pytest.raises(CliCommandError) as invalid_name:
-            session.get("fsp_rate_hz")
-        assert invalid_name.value.fc_error == "INVALID NAME: fsp_rate_hz"
+            session.get("no_such_setting")
+        assert invalid_name.value.fc_error == "INVALID NAME: no_such_setting"
         with pytest.raises(CliCommandError) as out_of_range:
             session.set("gyro_lpf1_static_hz", "99999")
         assert out_of_range.value.fc_error == "INVALID VALUE (Allowed range: 0 - 1000)"

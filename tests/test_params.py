@@ -64,8 +64,8 @@ def test_set_applies_saves_and_reads_back(virtual_fc: VirtualFC, tmp_path: Path)
     ("assignments", "messages"),
     [
         (
-            ["gyro_lpf1_static_hz=200", "fsp_rate_hz=1100"],
-            ["fsp_rate_hz: the FC says INVALID NAME"],
+            ["gyro_lpf1_static_hz=200", "no_such_setting=1100"],
+            ["no_such_setting: the FC says INVALID NAME"],
         ),
         (["gyro_lpf1_static_hz=99999"], ["out of range; Allowed range: 0 - 1000"]),
         (["gyro_lpf1_static_hz=abc"], ["not an integer; Allowed range: 0 - 1000"]),

@@ -1,8 +1,7 @@
 """End to end: a fresh clone of this repository, the real Betaflight tree, real make.
 
-One clone is shared by the whole session (fetching and compiling are the slow part; ccache
-makes repeated sessions fast). The clone is of the repository's HEAD, so commit before running
-these locally. Skipped only when the Betaflight repository cannot be reached.
+The clone and its first builds are session fixtures (tests/conftest.py) shared with the
+firmware and stream tests. Skipped only when the Betaflight repository cannot be reached.
 """
 
 from __future__ import annotations
@@ -31,60 +30,20 @@ REPO = Path(__file__).resolve().parents[2]
 BOARD = "SPEEDYBEEF7V3"
 JOBS = min(os.cpu_count() or 1, 2)
 
-# Used only when the checkout has no SPEEDYBEEF7V3 definition yet: a minimal STM32F7X2 board
-# (one gyro on SPI1, one UART, one motor) that exercises the same MCU, linker script and HAL.
-TEST_BOARD_CONFIG = """\
-#pragma once
-#define FC_TARGET_MCU     STM32F7X2
-#define BOARD_NAME        SPEEDYBEEF7V3
-#define MANUFACTURER_ID   SPBE
-#define USE_GYRO
-#define USE_ACC
-#define USE_ACCGYRO_BMI270
-#define GYRO_1_SPI_INSTANCE SPI1
-#define GYRO_1_CS_PIN       PB2
-#define GYRO_1_EXTI_PIN     PC4
-#define SPI1_SCK_PIN        PA5
-#define SPI1_SDI_PIN        PA6
-#define SPI1_SDO_PIN        PA7
-#define UART1_TX_PIN        PA9
-#define UART1_RX_PIN        PA10
-#define MOTOR1_PIN          PA15
-#define TIMER_PIN_MAPPING   TIMER_PIN_MAP(0, PA15, 1, 0)
-"""
+
+@pytest.fixture(scope="session")
+def project(fresh_clone: Project) -> Project:
+    return fresh_clone
 
 
 @pytest.fixture(scope="session")
-def project(tmp_path_factory: pytest.TempPathFactory) -> Project:
-    """A fresh `git clone` of this repository, with the submodule not initialised."""
-    if not (REPO / ".git").exists():
-        pytest.skip("not running from a git checkout of wftool")
-    url = run_git(REPO, "config", "-f", ".gitmodules", "submodule.betaflight.url")
-    reachable = subprocess.run(
-        ["git", "ls-remote", "--exit-code", url, "HEAD"], capture_output=True, timeout=120
-    )
-    if reachable.returncode != 0:
-        pytest.skip(f"Betaflight repository {url} unreachable")
-    root = tmp_path_factory.mktemp("e2e") / "wftool"
-    run_git(REPO, "clone", "-q", str(REPO), str(root))
-    board = root / "targets" / "configs" / BOARD / "config.h"
-    if not board.exists():
-        board.parent.mkdir(parents=True)
-        board.write_text(TEST_BOARD_CONFIG)
-    return Project(root)
+def sitl(sitl_build):
+    return sitl_build
 
 
 @pytest.fixture(scope="session")
-def sitl(project: Project):
-    """The first build of the session: fetches the tree, applies the series, builds SITL."""
-    assert not tree.is_checked_out(project)
-    return build(project, "sitl", BuildOptions(jobs=JOBS))
-
-
-@pytest.fixture(scope="session")
-def board(project: Project, sitl):
-    """speedybeef7v3 in the same clone (widens the sparse checkout to STM32F7)."""
-    return build(project, "speedybeef7v3", BuildOptions(jobs=JOBS))
+def board(board_build):
+    return board_build
 
 
 def test_fresh_clone_gets_a_sparse_pinned_submodule(project, sitl):

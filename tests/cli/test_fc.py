@@ -55,11 +55,18 @@ def test_invalid_parameter_exits_2_with_the_fcs_reason(
     on_sitl: VirtualFC, capsys: pytest.CaptureFixture[str], tmp_path: Path
 ) -> None:
     code, _, err = run(
-        capsys, "set", "fsp_rate_hz=1100", "gyro_lpf1_static_hz=5000", "--backup-dir", str(tmp_path)
+        capsys,
+        "set",
+        "no_such_setting=1",
+        "gyro_lpf1_static_hz=5000",
+        "--backup-dir",
+        str(tmp_path),
     )
     assert code == 2
     *progress, error = err.splitlines()
-    assert error.startswith("error: 2 invalid, nothing changed: fsp_rate_hz: the FC says INVALID")
+    assert error.startswith(
+        "error: 2 invalid, nothing changed: no_such_setting: the FC says INVALID"
+    )
     assert "gyro_lpf1_static_hz = 5000: out of range; Allowed range: 0 - 1000" in error
     assert progress[0].startswith("wftool: backup of the current configuration: ")
 
@@ -87,15 +94,15 @@ def test_backup_restore_and_info(
     assert code == 0 and out.startswith("BTFL 2025.12.5 (MSP API 1.47)")
 
 
-def test_configure_fsp_on_stock_firmware_fails_cleanly(
+def test_configure_fsp_prints_what_it_changed(
     on_sitl: VirtualFC, capsys: pytest.CaptureFixture[str], tmp_path: Path
 ) -> None:
-    code, _, err = run(capsys, "configure", "fsp", "--uart", "2", "--baud", "921600",
-                       "--backup-dir", str(tmp_path))  # fmt: skip
-    if "invalid, nothing changed" not in err:
-        pytest.skip("this SITL has the FSP settings (patched firmware)")
-    assert code == 2
-    assert "fsp_rate_hz: the FC says INVALID NAME" in err.splitlines()[-1]
+    code, out, err = run(capsys, "configure", "fsp", "--uart", "2", "--baud", "2000000",
+                         "--rate", "800", "--backup-dir", str(tmp_path))  # fmt: skip
+    assert code == 0, err
+    row = next(line for line in out.splitlines() if "fsp_rate_hz" in line)
+    assert [cell.strip() for cell in row.split("│")[1:-1]][2:] == ["1100", "800", "ok"]
+    assert "serial_update_rate_hz" in out and "features (MSP)" in out
 
 
 def test_flash_without_firmware_or_fc_answer(capsys: pytest.CaptureFixture[str]) -> None:

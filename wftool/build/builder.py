@@ -193,7 +193,7 @@ def prepare(
         variables["CONFIG_REVISION_DEFINE"] = (
             f"-D'__CONFIG_REVISION__=\"{_board_config_sha256(target)[:7]}\"'"
         )
-    defines = options.flags.compiler_defines()
+    defines = options.flags.compiler_defines() + [f"-D{d}" for d in target.defines]
     if defines:
         variables["EXTRA_FLAGS"] = " ".join(defines)
     if options.flags.debug:

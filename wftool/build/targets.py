@@ -19,6 +19,10 @@ SITL = "sitl"
 KNOWN_BOARD_MCUS = {"SPEEDYBEEF7V3": "STM32F7X2"}
 """Boards the lab flies, with the MCU their config.h must name (a guard against a wrong file)."""
 
+SITL_DEFINES = ("USE_LATE_TASK_STATISTICS",)
+"""The virtual FC does not run in real time, so its `tasks` also reports run counts (reset
+by each `tasks`): the exact loop rate over a window, which the stream tests compare with."""
+
 _DEFINE = r"^\s*#\s*define\s+{name}\s+(\S+)"
 
 
@@ -36,6 +40,8 @@ class Target:
     """The directory name under targets/configs/ that make's CONFIG= selects; None for SITL."""
     config_header: Path | None = None
     """targets/configs/<CONFIG>/config.h, None for SITL."""
+    defines: tuple[str, ...] = ()
+    """Compiler defines every build of this target gets."""
 
     @property
     def is_sitl(self) -> bool:
@@ -64,7 +70,7 @@ def known_targets(project: Project) -> list[str]:
 def resolve_target(project: Project, name: str) -> Target:
     """The target called NAME (case-insensitive), or a UsageError that lists the known ones."""
     if name.lower() == SITL:
-        return Target(name=SITL, board="SITL", mcu="SITL")
+        return Target(name=SITL, board="SITL", mcu="SITL", defines=SITL_DEFINES)
     boards = board_dirs(project)
     directory = boards.get(name.upper())
     if directory is None:
