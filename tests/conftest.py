@@ -19,6 +19,7 @@ import pytest
 
 from wftool.build import BuildOptions, BuildResult, build
 from wftool.build.project import Project
+from wftool.cli import main
 from wftool.sitl import VirtualFC
 
 REPO = Path(__file__).resolve().parent.parent
@@ -73,6 +74,14 @@ def virtual_fc(sitl_binary: Path, tmp_path: Path) -> Iterator[VirtualFC]:
     """A freshly started SITL with an empty configuration, stopped after the test."""
     with VirtualFC(sitl_binary, tmp_path / "sitl") as fc:
         yield fc
+
+
+def run_cli(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str, str]:
+    """Run `wftool ARGS` in-process: (exit code, stdout, stderr)."""
+    with pytest.raises(SystemExit) as exit_info:
+        main(list(args))
+    captured = capsys.readouterr()
+    return int(exit_info.value.code or 0), captured.out, captured.err
 
 
 def _git(cwd: Path, *args: str) -> str:

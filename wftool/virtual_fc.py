@@ -13,6 +13,7 @@ import socket
 import struct
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -36,16 +37,24 @@ class Motion:
     pitch_hz: float = 0.27
     yaw_deg_per_s: float = 15.0
 
-    def state(self, t: float) -> bytes:
-        """SITL's fdm_packet at time `t`: angular rates, specific force, attitude."""
+    def state(self, t: float, timestamp: float) -> bytes:
+        """SITL's fdm_packet for motion time `t`: angular rates, specific force, attitude."""
         roll = math.radians(self.roll_deg) * math.sin(2 * math.pi * self.roll_hz * t)
         pitch = math.radians(self.pitch_deg) * math.sin(2 * math.pi * self.pitch_hz * t)
         yaw = math.radians(self.yaw_deg_per_s * t) % (2 * math.pi)
-        roll_rate = math.radians(self.roll_deg) * 2 * math.pi * self.roll_hz * math.cos(
-            2 * math.pi * self.roll_hz * t
+        roll_rate = (
+            math.radians(self.roll_deg)
+            * 2
+            * math.pi
+            * self.roll_hz
+            * math.cos(2 * math.pi * self.roll_hz * t)
         )
-        pitch_rate = math.radians(self.pitch_deg) * 2 * math.pi * self.pitch_hz * math.cos(
-            2 * math.pi * self.pitch_hz * t
+        pitch_rate = (
+            math.radians(self.pitch_deg)
+            * 2
+            * math.pi
+            * self.pitch_hz
+            * math.cos(2 * math.pi * self.pitch_hz * t)
         )
         yaw_rate = math.radians(self.yaw_deg_per_s)
         # Hovering: the accelerometer feels gravity's reaction, in body axes (NED).
@@ -64,19 +73,23 @@ class Motion:
             cr * cp * sy - sr * sp * cy,
         )
         return struct.pack(
-            "<18d", t, roll_rate, pitch_rate, yaw_rate, *accel, *quaternion,
+            "<18d", timestamp, roll_rate, pitch_rate, yaw_rate, *accel, *quaternion,
             0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 101325.0,
         )  # fmt: skip
 
 
 class MotionFeeder:
-    """Sends `Motion` states to SITL at `rate_hz` from a daemon thread until stopped.
+    """Sends `Motion` states to SITL from a daemon thread until stopped.
 
-    SITL scales its clock by the simulator's time step over the real one, so the packets
-    carry the real monotonic time: the FC clock keeps running at real speed.
+    SITL rescales its own clock by simulator time over real time whenever a state packet's
+    timestamp is less than 20 ms after the previous one, so send jitter would make the FC
+    clock run fast or slow. The packets' simulator timestamps therefore advance by exactly
+    `SIM_STEP_S` each, which SITL never uses for rescaling: its clock stays real time.
     """
 
-    def __init__(self, motion: Motion, rate_hz: float = 200.0) -> None:
+    SIM_STEP_S = 0.025
+
+    def __init__(self, motion: Motion, rate_hz: float = 1.0 / SIM_STEP_S) -> None:
         self._motion = motion
         self._period = 1.0 / rate_hz
         self._stop = threading.Event()
@@ -93,9 +106,11 @@ class MotionFeeder:
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
             start = time.monotonic()
             next_send = start
+            sent = 0
             while not self._stop.is_set():
-                now = time.monotonic()
-                sock.sendto(self._motion.state(now - start), (LOOPBACK, SIM_STATE_PORT))
+                state = self._motion.state(time.monotonic() - start, sent * self.SIM_STEP_S)
+                sock.sendto(state, (LOOPBACK, SIM_STATE_PORT))
+                sent += 1
                 next_send += self._period
                 self._stop.wait(max(0.0, next_send - time.monotonic()))
 
@@ -138,6 +153,16 @@ class VirtualFcSession:
             self.fc.stop()
             raise
         return self
+
+    def serve(self, on_reset: Callable[[], None] | None = None) -> None:
+        """Keep the FC up until interrupted: a reset (CLI save, reboot) ends the SITL
+        process, so start it again, as a board's reset circuit would."""
+        while True:
+            time.sleep(0.2)
+            if not self.fc.running:
+                if on_reset is not None:
+                    on_reset()
+                self.fc.start()
 
     def stop(self) -> None:
         if self._feeder is not None:

@@ -10,16 +10,9 @@ from pathlib import Path
 
 import pytest
 
+from tests.conftest import run_cli as run
 from wftool.cli import fc as fc_commands
-from wftool.cli import main
 from wftool.sitl import VirtualFC
-
-
-def run(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str, str]:
-    with pytest.raises(SystemExit) as exit_info:
-        main(list(args))
-    captured = capsys.readouterr()
-    return int(exit_info.value.code or 0), captured.out, captured.err
 
 
 @pytest.fixture

@@ -24,6 +24,7 @@ from wftool.build import (
 )
 from wftool.build.project import PROJECT_ENV, Project, exclusive
 from wftool.build.targets import resolve_target
+from wftool.errors import BuildError
 
 # Piped output (CI logs, scripts) gets room for full paths instead of 80 folded columns.
 out = Console(highlight=False, width=None if sys.stdout.isatty() else 200)
@@ -243,6 +244,26 @@ def patches_export(project_dir: Path | None) -> None:
     out.print(f"exported {len(names)} patch(es) to patches/")
     for name in names:
         out.print(f"  {name}")
+
+
+@patches_group.command("test")
+@click.argument("names", nargs=-1)
+@project_option
+def patches_test(names: tuple[str, ...], project_dir: Path | None) -> None:
+    """Run Betaflight unit tests on the patched tree (default: the ones the series adds)."""
+    from wftool.build.unittests import run_unit_tests
+
+    project = project_from(project_dir)
+    with locked(project):
+        runs = run_unit_tests(project, list(names) or None)
+    for run in runs:
+        out.print(f"  {'[green]pass[/]' if run.passed else '[red]FAIL[/]'}  {run.name}")
+        if not run.passed:
+            out.print(run.output[-3000:], markup=False, highlight=False)
+    failed = [run.name for run in runs if not run.passed]
+    if failed:
+        raise BuildError(f"{len(failed)} of {len(runs)} unit test(s) failed: {', '.join(failed)}")
+    out.print(f"{len(runs)} unit test(s) passed")
 
 
 @click.group("toolchain")

@@ -18,6 +18,9 @@ class Criteria:
     min_rate_hz: float | None = None
     max_spread_ms: float | None = None
     max_loss_pct: float = 0.1
+    """Transport loss (frames the link lost), % of frames."""
+    max_drops_pct: float = 0.1
+    """FC-side drops (frames the FC's queue had no room for), % of frames."""
     max_errors: int = 0
     uplink: bool = False
 
@@ -81,7 +84,7 @@ def judge(summary: StreamSummary, criteria: Criteria) -> Verdict:
     sent = summary.frames + summary.lost_frames + summary.fc_drops
     drops = round(100.0 * summary.fc_drops / sent, 3) if sent else 0.0
     checks.append(
-        Check("FC-side drops", drops, criteria.max_loss_pct, drops <= criteria.max_loss_pct, " %")
+        Check("FC-side drops", drops, criteria.max_drops_pct, drops <= criteria.max_drops_pct, " %")
     )
     checks.append(
         Check(

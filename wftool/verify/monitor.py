@@ -77,7 +77,7 @@ class StreamSummary:
     packet_rate_hz: float
     current_frame_rate_hz: float
     source_rate_hz: float | None
-    """1 / median FC sample interval: the rate the FC captures at."""
+    """1 / mean FC sample interval: the rate the FC captures at, by its own clock."""
     expected_rate_hz: float | None
     fc_interval: IntervalSummary | None
     arrival_interval: IntervalSummary | None
@@ -229,7 +229,7 @@ class StreamMonitor:
             frame_rate_hz=frames / connected_s if connected_s > 0 else 0.0,
             packet_rate_hz=totals["packets"] / connected_s if connected_s > 0 else 0.0,
             current_frame_rate_hz=sum(window) / window_s if window_s > 0 else 0.0,
-            source_rate_hz=1e6 / fc.p50_us if fc is not None and fc.p50_us > 0 else None,
+            source_rate_hz=1e6 / fc.mean_us if fc is not None and fc.mean_us > 0 else None,
             expected_rate_hz=self.expected_rate_hz,
             fc_interval=fc,
             arrival_interval=self.arrival_intervals.summary(),

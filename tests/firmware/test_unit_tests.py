@@ -1,0 +1,24 @@
+"""The series' own Betaflight unit tests (gtest, clang), run on the freshly built tree."""
+
+from __future__ import annotations
+
+import shutil
+
+import pytest
+
+from wftool.build.project import Project
+from wftool.build.unittests import run_unit_tests, series_tests
+
+pytestmark = pytest.mark.slow
+
+
+def test_series_unit_tests_pass(fresh_clone: Project, sitl_build) -> None:
+    if shutil.which("clang") is None:
+        pytest.skip("clang not installed (Betaflight's unit tests need it)")
+    names = series_tests(fresh_clone)
+    assert {"test_fsp_unittest", "test_acc_rpm_filter_unittest"} <= set(names)
+    runs = run_unit_tests(fresh_clone)
+    failed = {run.name: run.output[-2000:] for run in runs if not run.passed}
+    assert not failed, failed
+    assert [run.name for run in runs] == names
+    assert all("[  PASSED  ]" in run.output for run in runs)

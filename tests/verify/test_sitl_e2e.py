@@ -1,0 +1,111 @@
+"""`wftool verify --stream` end to end against the patched SITL (a real Betaflight).
+
+The virtual FC runs with FSP on UART2 and synthetic motion. SITL is not real time (its loop
+stalls for milliseconds), so these runs pass the virtual FC's spread limit, as
+`wftool sitl --verify` does; everything else is judged with the defaults or stricter.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from tests.conftest import run_cli
+from wftool.cli.stream import SITL_MAX_SPREAD_MS
+from wftool.verify.live import LiveOptions, run_live
+from wftool.verify.monitor import StreamMonitor
+from wftool.virtual_fc import Motion, VirtualFcSession
+
+pytestmark = pytest.mark.slow
+
+SPREAD = str(SITL_MAX_SPREAD_MS)
+
+
+@pytest.fixture
+def fsp_fc(sitl_binary: Path, tmp_path: Path) -> Iterator[VirtualFcSession]:
+    with VirtualFcSession(sitl_binary, tmp_path / "fc", motion=Motion()) as session:
+        yield session
+
+
+def verify_json(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, dict, str]:
+    code, out, err = run_cli(capsys, *args, "--json")
+    return code, json.loads(out), err
+
+
+def test_stream_passes_with_no_errors_no_loss_and_replays_identically(
+    fsp_fc: VirtualFcSession, capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    recording = tmp_path / "run.mcap"
+    code, live, err = verify_json(
+        capsys, "verify", "--stream", "--port", fsp_fc.fsp_url, "--duration", "8",
+        "--max-loss", "0", "--max-spread-ms", SPREAD, "--record", str(recording),
+    )  # fmt: skip
+    assert code == 0, err
+    assert live["verdict"]["passed"]
+    assert live["rejected"] == {"cobs": 0, "length": 0, "version": 0, "crc": 0}
+    assert (live["lost_frames"], live["lost_packets"], live["e1"]) == (0, 0, True)
+    assert live["frames"] > 500
+    # the rate the OBC received is the rate the FC captured at
+    assert live["frame_rate_hz"] == pytest.approx(live["source_rate_hz"], rel=0.05)
+    assert live["clock"]["locked"] and abs(live["clock"]["rate_ppm"]) < 2000
+
+    code, replayed, _ = verify_json(
+        capsys, "replay", str(recording), "--max-loss", "0", "--max-spread-ms", SPREAD
+    )
+    assert code == 0
+    assert replayed == live
+
+
+def test_uplink_pattern_comes_back_in_the_stream(
+    fsp_fc: VirtualFcSession, capsys: pytest.CaptureFixture[str]
+) -> None:
+    code, summary, err = verify_json(
+        capsys, "verify", "--stream", "--port", fsp_fc.fsp_url, "--duration", "6",
+        "--uplink", "--uplink-rate", "50", "--max-spread-ms", SPREAD,
+    )  # fmt: skip
+    assert code == 0, err
+    uplink = summary["uplink"]
+    assert uplink["commands_sent"] >= 250
+    assert uplink["steps_echoed"] >= uplink["steps_sent"] - 1 >= 50
+    assert 0 < uplink["rtt_p50_ms"] < 200
+
+
+def test_stream_without_the_uplink_check_fails_it_when_asked(
+    fsp_fc: VirtualFcSession, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The verdict can fail: a stricter rate than the FC can give is reported, exit 1."""
+    code, summary, err = verify_json(
+        capsys, "verify", "--stream", "--port", fsp_fc.fsp_url, "--duration", "3",
+        "--min-rate", "100000", "--max-spread-ms", SPREAD,
+    )  # fmt: skip
+    assert code == 1
+    assert err.strip().splitlines()[-1].startswith("error: stream verification failed: frame rate")
+    assert not summary["verdict"]["passed"]
+
+
+def test_sitl_killed_and_restarted_mid_run_is_survived(fsp_fc: VirtualFcSession) -> None:
+    monitor = StreamMonitor(fsp_fc.fsp_url)
+    result = {}
+
+    def verify() -> None:
+        result["summary"] = run_live(LiveOptions(fsp_fc.fsp_url, 2_000_000, 12.0), monitor)
+
+    thread = threading.Thread(target=verify)
+    thread.start()
+    time.sleep(3)
+    before = monitor.summary().frames
+    fsp_fc.fc.stop()  # the FC vanishes mid-run ...
+    time.sleep(2)
+    fsp_fc.fc.start()  # ... and comes back with its saved configuration
+    thread.join(20)
+    summary = result["summary"]
+    assert before > 100
+    assert summary.reconnects == 1
+    assert summary.frames > before + 100  # streaming again after the restart
+    assert summary.lost_frames == 0 and summary.errors == 0
+    assert summary.clock is not None and summary.clock.locked  # re-aligned on the new connection
