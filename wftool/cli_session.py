@@ -28,6 +28,8 @@ PROMPT = b"\r\n# "
 SETTLE_S = 0.05
 """Quiet time after a prompt before a reply counts as complete (`# ` also starts comment
 lines inside `diff` output)."""
+EXIT_SETTLE_S = 0.1
+"""After `exit noreboot`: time for the FC to finish its CLI input loop before MSP."""
 
 _ERROR = re.compile(r"###ERROR IN ([^:]*): (.*?)###")
 _INTEGER = re.compile(r"[+-]?\d+")
@@ -212,6 +214,9 @@ class CliSession:
         with port_errors(self.url):
             self.link.write(b"exit noreboot\n")
         self._collect("exit noreboot", self.timeout, until=b"no reboot")
+        # Betaflight's cliProcess() goes on reading the input after `exit`: bytes that arrive
+        # before it returns (an MSP request sent at once) are eaten as CLI characters.
+        time.sleep(EXIT_SETTLE_S)
 
     def _leave(self, command: str) -> None:
         """Send a command that ends in a reset; return once the FC is going down.

@@ -1,8 +1,8 @@
 """`wftool verify --stream` end to end against the patched SITL (a real Betaflight).
 
 The virtual FC runs with FSP on UART2 and synthetic motion. SITL is not real time (its loop
-stalls for milliseconds), so these runs pass the virtual FC's spread limit, as
-`wftool sitl --verify` does; everything else is judged with the defaults or stricter.
+stalls for milliseconds), so these runs pass the virtual FC's limits for interval spread and
+FC-side drops, as `wftool sitl --verify` does; transport loss and rejected chunks must be 0.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from tests.conftest import run_cli
-from wftool.cli.stream import SITL_MAX_SPREAD_MS
+from wftool.cli.stream import SITL_MAX_FC_DROPS_PCT, SITL_MAX_SPREAD_MS
 from wftool.verify.live import LiveOptions, run_live
 from wftool.verify.monitor import StreamMonitor
 from wftool.virtual_fc import Motion, VirtualFcSession
@@ -24,6 +24,7 @@ from wftool.virtual_fc import Motion, VirtualFcSession
 pytestmark = pytest.mark.slow
 
 SPREAD = str(SITL_MAX_SPREAD_MS)
+DROPS = str(SITL_MAX_FC_DROPS_PCT)
 
 
 @pytest.fixture
@@ -43,7 +44,8 @@ def test_stream_passes_with_no_errors_no_loss_and_replays_identically(
     recording = tmp_path / "run.mcap"
     code, live, err = verify_json(
         capsys, "verify", "--stream", "--port", fsp_fc.fsp_url, "--duration", "8",
-        "--max-loss", "0", "--max-spread-ms", SPREAD, "--record", str(recording),
+        "--max-loss", "0", "--max-spread-ms", SPREAD, "--max-fc-drops", DROPS,
+        "--record", str(recording),
     )  # fmt: skip
     assert code == 0, err
     assert live["verdict"]["passed"]
@@ -55,8 +57,9 @@ def test_stream_passes_with_no_errors_no_loss_and_replays_identically(
     assert live["clock"]["locked"] and abs(live["clock"]["rate_ppm"]) < 2000
 
     code, replayed, _ = verify_json(
-        capsys, "replay", str(recording), "--max-loss", "0", "--max-spread-ms", SPREAD
-    )
+        capsys, "replay", str(recording), "--max-loss", "0", "--max-spread-ms", SPREAD,
+        "--max-fc-drops", DROPS,
+    )  # fmt: skip
     assert code == 0
     assert replayed == live
 
@@ -66,7 +69,7 @@ def test_uplink_pattern_comes_back_in_the_stream(
 ) -> None:
     code, summary, err = verify_json(
         capsys, "verify", "--stream", "--port", fsp_fc.fsp_url, "--duration", "6",
-        "--uplink", "--uplink-rate", "50", "--max-spread-ms", SPREAD,
+        "--uplink", "--uplink-rate", "50", "--max-spread-ms", SPREAD, "--max-fc-drops", DROPS,
     )  # fmt: skip
     assert code == 0, err
     uplink = summary["uplink"]
