@@ -36,6 +36,7 @@ class Cmd(enum.IntEnum):
     FEATURE_CONFIG = 36
     SET_FEATURE_CONFIG = 37
     REBOOT = 68
+    STATUS = 101
     RAW_IMU = 102
     RC = 105
     ATTITUDE = 108
@@ -382,6 +383,10 @@ class MspClient:
         return Analog(
             voltage_v=centivolts / 100, mah_drawn=mah_drawn, rssi=rssi, current_a=centiamps / 100
         )
+
+    def pid_cycle_us(self) -> int:
+        """The PID loop period the FC measures (MSP_STATUS); 0 while the loop does not run."""
+        return _Fields(Cmd.STATUS, self.request(Cmd.STATUS)).unpack("H")[0]
 
     def features(self) -> int:
         """The configured feature bit mask (takes effect at boot)."""

@@ -9,6 +9,9 @@ SITL facts this relies on (Betaflight 2025.12, `src/platform/SIMULATOR`):
 - Now and then (more often on a loaded machine) UART1 binds but never accepts: the TCP
   thread's `dyad_update()` can destroy the listening stream while the main thread is still
   setting it up (dyad is not thread-safe). Such a start is detected by the probe and retried.
+- Now and then (a few starts in a hundred) SITL boots with its gyro task never scheduled:
+  MSP and the CLI answer, but no PID loop runs (MSP_STATUS cycle time 0). Such a start is
+  detected and retried too, as a watchdog would reset a hung board.
 - Every reset (CLI `save`/`exit`, MSP reboot, reboot to bootloader) ends the process with
   exit status 0; the configuration survives in `eeprom.bin` in the working directory.
 - It also binds UDP 9001–9004, so two SITLs need separate network namespaces.
@@ -24,11 +27,13 @@ import time
 from pathlib import Path
 
 from wftool.errors import SitlError
+from wftool.msp import MspClient
 
 LOOPBACK = "127.0.0.1"
 TCP_BASE_PORT = 5760
 START_ATTEMPTS = 3
 ACCEPT_TIMEOUT_S = 3.0
+LOOP_TIMEOUT_S = 3.0
 
 
 def uart_url(uart: int) -> str:
@@ -70,7 +75,7 @@ class VirtualFC:
         problem = ""
         for _attempt in range(START_ATTEMPTS):
             self._spawn()
-            problem = self._uart1_problem()
+            problem = self._uart1_problem() or self._loop_problem()
             if not problem:
                 self.starts += 1
                 return
@@ -110,6 +115,16 @@ class VirtualFC:
         if self._await_log(b"[CLS]UART1", ACCEPT_TIMEOUT_S, offset) is None:
             return "SITL's UART1 did not notice the probe connection closing"
         return ""
+
+    def _loop_problem(self) -> str:
+        """Why the flight loop is not running, or "" once MSP reports a PID cycle time."""
+        deadline = time.monotonic() + LOOP_TIMEOUT_S
+        with MspClient.open(self.url) as msp:
+            while time.monotonic() < deadline:
+                if msp.pid_cycle_us():
+                    return ""
+                time.sleep(0.05)
+        return f"SITL's PID loop did not start within {LOOP_TIMEOUT_S:.0f} s"
 
     def _await_log(self, marker: bytes, timeout: float, offset: int = 0) -> bytes | None:
         """The log from `offset` (default: this start) once it holds `marker`, else None."""

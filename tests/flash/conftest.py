@@ -12,12 +12,12 @@ from tests.flash.standin import FLASH_SIZE, SCRIPT, UNTOUCHED, StandinDfuUtil
 
 
 @pytest.fixture(scope="session")
-def built_hex() -> Path:
-    """A Betaflight STM32F7X2 hex from a real build (WFTOOL_TEST_HEX), or skip."""
+def built_hex(request: pytest.FixtureRequest) -> Path:
+    """The SPEEDYBEEF7V3 hex of this session's build (or WFTOOL_TEST_HEX): a real image."""
     path = os.environ.get("WFTOOL_TEST_HEX")
-    if not path:
-        pytest.skip("WFTOOL_TEST_HEX is not set (path to a built betaflight_*_STM32F7X2.hex)")
-    return Path(path)
+    if path:
+        return Path(path)
+    return request.getfixturevalue("board_build").firmware
 
 
 @pytest.fixture
