@@ -82,4 +82,45 @@ def bench_decode(minutes: float, chunk: int, tunnel: bool) -> None:
     out.print(table)
 
 
+@bench_group.command("stream")
+@click.option(
+    "--rates",
+    default="1100,2000,3000,4000",
+    show_default=True,
+    help="fsp_rate_hz values to try, comma-separated; the first is the default rate.",
+)
+@click.option("--seconds", default=60.0, show_default=True, help="Streaming time per rate.")
+@click.option(
+    "--binary",
+    type=click.Path(exists=True, dir_okay=False, path_type=Path),
+    help="SITL program [build the patched one].",
+)
+@click.option("--project", "project_dir", type=click.Path(file_okay=False, path_type=Path))
+def bench_stream(rates: str, seconds: float, binary: Path | None, project_dir: Path | None) -> None:
+    """On the virtual FC: the highest fsp_rate_hz that streams without loss, verify's CPU
+    share at the default rate, and the decode latency (read to frames)."""
+    from wftool.bench.stream import run_stream_bench
+    from wftool.cli.stream import build_sitl
+
+    try:
+        values = [int(value) for value in rates.split(",")]
+    except ValueError:
+        raise click.BadParameter(f"expected integers like 1100,2000: {rates!r}") from None
+    result = run_stream_bench(binary or build_sitl(project_dir), values, seconds)
+    table = Table(title=f"FSP on the virtual FC, {seconds:g} s per rate")
+    for column in ("fsp_rate_hz", "frames/s", "transport loss", "FC drops", "rejected", "held"):
+        table.add_column(column, justify="right")
+    for figures in result.rates:
+        table.add_row(
+            str(figures.rate_hz), f"{figures.frames_per_s:.1f}", str(figures.lost_frames),
+            str(figures.fc_drops), str(figures.errors), "yes" if figures.held else "no",
+        )  # fmt: skip
+    out.print(table)
+    out.print(f"highest rate held with zero loss: {result.highest_held_rate or 'none'}")
+    first = result.rates[0].rate_hz
+    out.print(f"verify CPU at fsp_rate_hz {first}: {result.cpu_percent:.1f} % of one core")
+    p50, p99 = result.latency_ms
+    out.print(f"decode latency, read to frames: P50 {p50:.3f} ms, P99 {p99:.3f} ms")
+
+
 COMMANDS: list[click.Command] = [bench_group]

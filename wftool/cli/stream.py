@@ -127,6 +127,8 @@ def verify_stream(
             except KeyboardInterrupt:  # the normal end of an open-ended run
                 summary = monitor.summary()
             live.update(view(summary))
+        if not console.is_terminal:
+            console.line()  # rich leaves a non-terminal's last line open
     finally:
         if recorder is not None:
             recorder.close()
@@ -212,7 +214,7 @@ def sitl(
     from wftool.virtual_fc import Motion, VirtualFcSession
 
     if binary is None:
-        binary = _build_sitl(project_dir)
+        binary = build_sitl(project_dir)
     workdir = workdir or Path(tempfile.mkdtemp(prefix="wftool-sitl-"))
     session = VirtualFcSession(
         binary, workdir, rate_hz=rate_hz, motion=Motion() if motion else None
@@ -235,7 +237,8 @@ def sitl(
             err.print("stopping")
 
 
-def _build_sitl(project_dir: Path | None) -> Path:
+def build_sitl(project_dir: Path | None) -> Path:
+    """The patched SITL program, built (or found up to date) in the wftool checkout."""
     from wftool.build import build, find_project
 
     result = build(find_project(project_dir), "sitl", console=err)

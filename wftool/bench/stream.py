@@ -1,0 +1,111 @@
+"""The stream on the virtual FC: how fast it holds, what verify costs, how soon a frame is out.
+
+For each `fsp_rate_hz` the patched SITL is started fresh with FSP configured and the real
+verify loop (`run_live`, the monitor, the dashboard rendered four times a second into a
+discarded console) runs for the given time. Figures: frames/s, transport loss, FC-side
+drops and rejections per rate; the CPU share of this process at the first rate (the SITL is
+another process); and the decode latency from a read returning to its frames delivered.
+"""
+
+from __future__ import annotations
+
+import io
+import tempfile
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from rich.console import Console
+
+from wftool.fsp import StatePacket
+from wftool.verify.criteria import Criteria, judge
+from wftool.verify.dashboard import render
+from wftool.verify.live import LiveOptions, run_live
+from wftool.verify.monitor import StreamMonitor, StreamSummary
+from wftool.virtual_fc import VirtualFcSession
+
+
+@dataclass(frozen=True)
+class RateFigures:
+    rate_hz: int
+    frames_per_s: float
+    lost_frames: int
+    fc_drops: int
+    errors: int
+
+    @property
+    def held(self) -> bool:
+        """Nothing lost, dropped or rejected."""
+        return self.lost_frames == 0 and self.fc_drops == 0 and self.errors == 0
+
+
+@dataclass(frozen=True)
+class StreamBenchResult:
+    seconds: float
+    rates: tuple[RateFigures, ...]
+    cpu_percent: float
+    """CPU time of the verify process over wall time, at the first rate."""
+    latency_ms: tuple[float, float]
+    """P50 and P99 from a read returning to its frames delivered, at the first rate."""
+
+    @property
+    def highest_held_rate(self) -> int | None:
+        held = [r.rate_hz for r in self.rates if r.held]
+        return max(held) if held else None
+
+
+class _TimedMonitor(StreamMonitor):
+    """A monitor that also notes how long each read took to become frames."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        self.latencies: list[float] = []
+
+    def feed(self, data: bytes, t: float) -> list[StatePacket]:
+        packets = super().feed(data, t)
+        if packets:
+            self.latencies.append(time.monotonic() - t)
+        return packets
+
+
+def _quantile(values: Sequence[float], q: float) -> float:
+    ordered = sorted(values)
+    return ordered[round(q * (len(ordered) - 1))] if ordered else float("nan")
+
+
+def run_stream_bench(binary: Path, rates: Sequence[int], seconds: float) -> StreamBenchResult:
+    figures = []
+    cpu_percent = float("nan")
+    latency = (float("nan"), float("nan"))
+    screen = Console(file=io.StringIO(), width=100)
+    criteria = Criteria()
+    with tempfile.TemporaryDirectory(prefix="wftool-bench-") as scratch:
+        for index, rate in enumerate(rates):
+            with VirtualFcSession(binary, Path(scratch) / f"rate-{rate}", rate_hz=rate) as fc:
+                monitor = _TimedMonitor(fc.fsp_url)
+
+                def draw(summary: StreamSummary, monitor: StreamMonitor = monitor) -> None:
+                    screen.print(render(summary, monitor.latest, judge(summary, criteria)))
+                    screen.file = io.StringIO()  # keep memory flat
+
+                cpu_start, wall_start = time.process_time(), time.monotonic()
+                summary = run_live(LiveOptions(fc.fsp_url, 2_000_000, seconds), monitor, None, draw)
+                cpu = time.process_time() - cpu_start
+                wall = time.monotonic() - wall_start
+            figures.append(
+                RateFigures(
+                    rate_hz=rate,
+                    frames_per_s=summary.frame_rate_hz,
+                    lost_frames=summary.lost_frames,
+                    fc_drops=summary.fc_drops,
+                    errors=summary.errors,
+                )
+            )
+            if index == 0:
+                cpu_percent = 100.0 * cpu / wall
+                latency = (
+                    1e3 * _quantile(monitor.latencies, 0.5),
+                    1e3 * _quantile(monitor.latencies, 0.99),
+                )
+    return StreamBenchResult(seconds, tuple(figures), cpu_percent, latency)
