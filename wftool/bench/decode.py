@@ -1,8 +1,9 @@
 """Decoder throughput: bytes in → frames out on one core, and memory over a long replay.
 
-The stream is a synthetic flight (E1 on, moving values, real-time arrival stamps) produced
-chunk by chunk outside the timed region, so only `StateDecoder.feed` and walking its
-frames are measured, and the replay never holds more than one chunk.
+The stream is a synthetic flight (E1 on, moving values) written once to a capture file;
+each replay reads that file in chunks, as `wftool replay` or an OBC reading a UART would,
+and feeds them with real-time arrival stamps. Reading, `StateDecoder.feed` and walking
+the frames are timed; memory is sampled along the way (the replay holds one chunk).
 """
 
 from __future__ import annotations
@@ -10,8 +11,8 @@ from __future__ import annotations
 import math
 import resource
 import time
-from collections.abc import Iterator
 from dataclasses import dataclass
+from pathlib import Path
 
 from wftool.fsp import SensorFrame, StateDecoder, StatePacket
 from wftool.fsp.encoder import encode_state
@@ -56,52 +57,43 @@ def _frame(t_us: int) -> SensorFrame:
     )
 
 
-def synthetic_stream(packets: int, chunk_bytes: int, tunnel: bool) -> Iterator[tuple[bytes, float]]:
-    """(chunk, OBC arrival time) pairs of a steady stream, as a UART read would return them."""
-    pending = bytearray()
+def write_capture(path: Path, packets: int, tunnel: bool) -> None:
+    """A capture file of `packets` consecutive state packets of a steady stream."""
     mavlink = bytes(64) if tunnel else None
     t_us = 4_000_000_000  # wraps after ~5 min, so a 10 min replay crosses it
-    for seq in range(packets):
-        tx = t_us + FRAME_PERIOD_US + 120
-        packet = StatePacket(
-            tx % 2**32,
-            (_frame(t_us), _frame(t_us + FRAME_PERIOD_US)),
-            seq % 2**24,
-            True,
-            0,
-            mavlink,
-        )
-        pending += encode_state(packet)
-        t_us += 2 * FRAME_PERIOD_US
-        if len(pending) >= chunk_bytes:
-            yield bytes(pending), tx * 1e-6 + 0.001
-            pending.clear()
-    if pending:
-        yield bytes(pending), t_us * 1e-6
+    with path.open("wb") as capture:
+        for seq in range(packets):
+            frames = (_frame(t_us), _frame(t_us + FRAME_PERIOD_US))
+            tx = (t_us + FRAME_PERIOD_US + 120) % 2**32
+            capture.write(encode_state(StatePacket(tx, frames, seq % 2**24, True, 0, mavlink)))
+            t_us += 2 * FRAME_PERIOD_US
 
 
 def _rss_kib() -> int:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 
 
-def run_decode_bench(minutes: float, chunk_bytes: int, tunnel: bool) -> DecodeBenchResult:
-    packets = int(minutes * 60 * REALTIME_PACKETS_PER_S)
-    checkpoints = {int(packets * q / 4) for q in range(1, 4)}
+def run_decode_bench(capture: Path, chunk_bytes: int) -> DecodeBenchResult:
+    """Replay `capture` once through a fresh decoder."""
+    size = capture.stat().st_size
+    checkpoints = [size * q // 4 for q in range(1, 4)]
     decoder = StateDecoder()
     rss = [_rss_kib()]
-    elapsed = 0.0
     frames = 0
     clock = time.perf_counter
-    for chunk, arrival in synthetic_stream(packets, chunk_bytes, tunnel):
+    arrival_step = chunk_bytes / (REALTIME_PACKETS_PER_S * 118)  # real-time arrival stamps
+    arrival = 0.0
+    with capture.open("rb", buffering=0) as stream:
         start = clock()
-        for packet in decoder.feed(chunk, arrival):
-            for _frame_out in packet.frames:
-                frames += 1
-        elapsed += clock() - start
-        done = decoder.stats.packets
-        if checkpoints and done >= min(checkpoints):
-            checkpoints.discard(min(checkpoints))
-            rss.append(_rss_kib())
+        while chunk := stream.read(chunk_bytes):
+            arrival += arrival_step
+            for packet in decoder.feed(chunk, arrival):
+                for _frame_out in packet.frames:
+                    frames += 1
+            if checkpoints and decoder.stats.bytes >= checkpoints[0]:
+                checkpoints.pop(0)
+                rss.append(_rss_kib())
+        elapsed = clock() - start
     rss.append(_rss_kib())
     stats = decoder.stats
     return DecodeBenchResult(

@@ -70,45 +70,51 @@ class StateDecoder:
         stats = self.stats
         stats.bytes += len(data)
         packets = [parse_state(payload) for payload in self._deframer.feed(data)]
+        if not packets:
+            return packets
+        unwrap = self._fc_clock.unwrap
+        clock = self.clock
+        last = self._last
         for packet in packets:
-            self._account(packet, arrival_time)
+            # Unwrap the oldest instant in the packet; the others follow it within a period.
+            first, second = packet.frames
+            base_raw = first.values[0]
+            base_us, reset = unwrap(base_raw, arrival_time)
+            if reset:
+                self._epoch += 1
+                last = None
+                clock.reset()
+            first.time_us = base_us
+            second.time_us = second_us = base_us + (second.values[0] - base_raw) % U32
+            packet.time_us = time_us = base_us + (packet.tx_time_us - base_raw) % U32
+            packet.arrival_time = arrival_time
+            packet.epoch = self._epoch
+            if arrival_time is not None:
+                clock.observe(time_us, arrival_time)
+                first.obc_time = clock.to_obc(base_us)
+                second.obc_time = clock.to_obc(second_us)
+            if last is not None:
+                self._count_loss(last, packet, base_us, second_us)
+            last = packet
+        self._last = last
+        stats.e1 = last.e1
         stats.packets += len(packets)
         stats.frames += 2 * len(packets)
         stats.wraps = self._fc_clock.wraps
         stats.resets = self._fc_clock.resets
         return packets
 
-    def _account(self, packet: StatePacket, arrival_time: float | None) -> None:
-        # Unwrap the oldest instant in the packet; the others follow it within one period.
-        first, second = packet.frames
-        base_raw = first.values[0]
-        base_us, reset = self._fc_clock.unwrap(base_raw, arrival_time)
-        if reset:
-            self._epoch += 1
-            self._last = None
-            self.clock.reset()
-        first.time_us = base_us
-        second.time_us = second_us = base_us + (second.values[0] - base_raw) % U32
-        packet.time_us = base_us + (packet.tx_time_us - base_raw) % U32
-        packet.arrival_time = arrival_time
-        packet.epoch = self._epoch
-        if arrival_time is not None:
-            clock = self.clock
-            clock.observe(packet.time_us, arrival_time)
-            first.obc_time = clock.to_obc(base_us)
-            second.obc_time = clock.to_obc(second_us)
-
-        last, self._last = self._last, packet
+    def _count_loss(
+        self, last: StatePacket, packet: StatePacket, base_us: int, second_us: int
+    ) -> None:
         stats = self.stats
-        stats.e1 = packet.e1
-        if last is None:
-            return
         if packet.e1 and last.e1:
             gap = (packet.seq - last.seq - 1) % SEQ_MODULUS
-            if gap < _SEQ_HALF:  # else a repeat or reorder: nothing lost
+            if gap and gap < _SEQ_HALF:  # a larger gap is a repeat or reorder: nothing lost
                 stats.lost_packets += gap
                 stats.lost_frames += 2 * gap
-            stats.fc_drops += (packet.drops - last.drops) % DROPS_MODULUS
+            if packet.drops != last.drops:
+                stats.fc_drops += (packet.drops - last.drops) % DROPS_MODULUS
         else:
             period = second_us - base_us
             if period > 0:

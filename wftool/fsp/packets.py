@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 import struct
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 from wftool.fsp.crc import crc8
 
@@ -30,10 +30,14 @@ DROPS_MODULUS = 1 << 16
 
 _FRAME_FORMAT = "I3hhf3h4h6h4HH"
 _FRAME_VALUES = 24
-_HEADER = "<BBHI"  # version, seq bits 0-7, seq bits 8-23, tx_time_us
-_TRAILER = "HBB"  # reserved2 bits 0-15, reserved2 bits 16-23, crc
-_STATE_BASE = struct.Struct(_HEADER + _FRAME_FORMAT * 2 + _TRAILER)
-_STATE_TUNNEL = struct.Struct(_HEADER + _FRAME_FORMAT * 2 + "64s" + _TRAILER)
+_HEADER_FORMAT = "<BBHI"  # version, seq bits 0-7, seq bits 8-23, tx_time_us
+_TRAILER_FORMAT = "HBB"  # reserved2 bits 0-15, reserved2 bits 16-23, crc
+_STATE_BASE = struct.Struct(_HEADER_FORMAT + _FRAME_FORMAT * 2 + _TRAILER_FORMAT)
+_STATE_TUNNEL = struct.Struct(_HEADER_FORMAT + _FRAME_FORMAT * 2 + "64s" + _TRAILER_FORMAT)
+_HEADER = struct.Struct(_HEADER_FORMAT)
+_FRAME = struct.Struct("<" + _FRAME_FORMAT)
+_TRAILER = struct.Struct("<" + _TRAILER_FORMAT)
+_new = object.__new__
 _COMMAND = struct.Struct("<BBHI6h3xB")
 assert _STATE_BASE.size == STATE_LENGTH
 assert _STATE_TUNNEL.size == STATE_TUNNEL_LENGTH
@@ -73,13 +77,6 @@ class SensorFrame:
         """FC capture time unwrapped to 64 bits (set by the decoder)."""
         self.obc_time: float | None = None
         """Capture time on the OBC clock in seconds (set by the decoder's clock estimator)."""
-
-    @classmethod
-    def from_values(cls, values: tuple) -> SensorFrame:
-        """A frame from its 24 wire values, as unpacked (no copy, no checks)."""
-        frame = cls.__new__(cls)
-        frame.values, frame.time_us, frame.obc_time = values, None, None
-        return frame
 
     sample_time_us = property(lambda self: self.values[0])
     acc = property(lambda self: self.values[1:4])
@@ -147,23 +144,53 @@ FRAME_FIELDS = (
 )  # fmt: skip
 
 
-@dataclass(slots=True)
 class StatePacket:
     """FC → OBC state packet (spec §3): two sensor frames, optional MAVLink tunnel, E1."""
 
-    tx_time_us: int
-    frames: tuple[SensorFrame, SensorFrame]
-    seq: int = 0
-    e1: bool = False
-    drops: int = 0
-    mavlink: bytes | None = None
-    """The 64-byte tunnel field of the 180-byte variant, zero padding included; else None."""
-    time_us: int | None = field(default=None, compare=False)
-    """`tx_time_us` unwrapped to 64 bits (set by the decoder)."""
-    arrival_time: float | None = field(default=None, compare=False)
-    """OBC clock (s) when the bytes carrying this packet were read (set by the decoder)."""
-    epoch: int = field(default=0, compare=False)
-    """How many FC resets the decoder had seen when this packet arrived."""
+    __slots__ = (
+        "arrival_time", "drops", "e1", "epoch", "frames", "mavlink", "seq", "time_us",
+        "tx_time_us",
+    )  # fmt: skip
+
+    def __init__(
+        self,
+        tx_time_us: int,
+        frames: tuple[SensorFrame, SensorFrame],
+        seq: int = 0,
+        e1: bool = False,
+        drops: int = 0,
+        mavlink: bytes | None = None,
+    ) -> None:
+        self.tx_time_us = tx_time_us
+        self.frames = frames
+        self.seq = seq
+        self.e1 = e1
+        self.drops = drops
+        self.mavlink: bytes | None = mavlink
+        """The 64-byte tunnel field of the 180-byte variant, zero padding included; else None."""
+        self.time_us: int | None = None
+        """`tx_time_us` unwrapped to 64 bits (set by the decoder)."""
+        self.arrival_time: float | None = None
+        """OBC clock (s) when the bytes carrying this packet were read (set by the decoder)."""
+        self.epoch = 0
+        """How many FC resets the decoder had seen when this packet arrived."""
+
+    def _wire(self) -> tuple:
+        return (self.tx_time_us, self.frames, self.seq, self.e1, self.drops, self.mavlink)
+
+    def __eq__(self, other: object) -> bool:
+        """Wire content only, like `SensorFrame`."""
+        if not isinstance(other, StatePacket):
+            return NotImplemented
+        return self._wire() == other._wire()
+
+    __hash__ = None  # type: ignore[assignment]  # the timing fields are mutable
+
+    def __repr__(self) -> str:
+        return (
+            f"StatePacket(tx_time_us={self.tx_time_us}, seq={self.seq}, e1={self.e1}, "
+            f"drops={self.drops}, tunnel={self.tunnel}, frames={self.frames!r})"
+        )
 
     @property
     def version(self) -> int:
@@ -185,23 +212,30 @@ class CommandPacket:
 
 
 def parse_state(payload: bytes) -> StatePacket:
-    """A validated 116- or 180-byte state payload (see `framing.Deframer`) as a packet."""
+    """A validated 116- or 180-byte state payload (see `framing.Deframer`) as a packet.
+
+    The decoder's hot path: objects are filled in directly rather than through __init__.
+    """
+    _, seq_low, seq_high, tx_time_us = _HEADER.unpack_from(payload)
+    first = _new(SensorFrame)
+    first.values, first.time_us, first.obc_time = _FRAME.unpack_from(payload, 8), None, None
+    second = _new(SensorFrame)
+    second.values, second.time_us, second.obc_time = _FRAME.unpack_from(payload, 60), None, None
+    packet = _new(StatePacket)
     if len(payload) == STATE_LENGTH:
-        v = _STATE_BASE.unpack(payload)
-        mavlink, tail = None, 52
+        packet.mavlink = None
+        drops, reserved2_high, _ = _TRAILER.unpack_from(payload, 112)
     else:
-        v = _STATE_TUNNEL.unpack(payload)
-        mavlink, tail = v[52], 53
-    reserved2_high = v[tail + 1]
-    from_values = SensorFrame.from_values
-    return StatePacket(
-        v[3],
-        (from_values(v[4:28]), from_values(v[28:52])),
-        v[1] | v[2] << 8,
-        bool(reserved2_high & 0x80),
-        v[tail],
-        mavlink,
-    )
+        packet.mavlink = payload[112:176]
+        drops, reserved2_high, _ = _TRAILER.unpack_from(payload, 176)
+    packet.tx_time_us = tx_time_us
+    packet.frames = (first, second)
+    packet.seq = seq_low | seq_high << 8
+    packet.e1 = reserved2_high >= 0x80
+    packet.drops = drops
+    packet.time_us = packet.arrival_time = None
+    packet.epoch = 0
+    return packet
 
 
 def pack_state(packet: StatePacket) -> bytes:
