@@ -133,7 +133,6 @@ class StreamMonitor:
     fc_intervals: IntervalHistogram = field(default_factory=IntervalHistogram)
     arrival_intervals: IntervalHistogram = field(default_factory=IntervalHistogram)
     latest: SensorFrame | None = None
-    latest_packet: StatePacket | None = None
     uplink: UplinkTracker | None = None
 
     def __post_init__(self) -> None:
@@ -192,7 +191,6 @@ class StreamMonitor:
         connection.last_frame, connection.last_epoch = previous, epoch
         connection.last_arrival = last_arrival
         self.latest = previous
-        self.latest_packet = packets[-1]
         recent = self._recent
         recent.append((t, 2 * len(packets)))
         while recent and recent[0][0] < t - RATE_WINDOW_S:
