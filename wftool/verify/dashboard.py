@@ -18,8 +18,9 @@ from wftool.fsp import SensorFrame
 from wftool.verify.criteria import Verdict
 from wftool.verify.monitor import IntervalSummary, StreamSummary
 
-LABEL = 22
-CELL = 10
+LABEL = 21
+CELL = 9
+"""Label and cell widths: a label and six cells fit an 80-column terminal inside the panel."""
 
 
 def _num(value: float | None, fmt: str = ".1f") -> str:
@@ -42,7 +43,7 @@ def _rates(summary: StreamSummary) -> list[Text]:
     expected, source = summary.expected_rate_hz, summary.source_rate_hz
     return [
         _section("Rate"),
-        _row("", ("current", "average", "FC source", "expected"), "dim"),
+        _row("", ("current", "average", "FC rate", "expected"), "dim"),
         _row(
             "frames/s",
             (
@@ -107,9 +108,8 @@ def _clock(summary: StreamSummary) -> Text:
     state = "locked" if clock.locked else "acquiring"
     residual = "–" if math.isnan(clock.residual_s) else f"{clock.residual_s * 1e3:+.3f} ms"
     return Text.from_markup(
-        f"[b]clock[/] {state}   rate {clock.rate_ppm:+.1f} ppm   "
-        f"offset {clock.offset_s:.6f} s   residual {residual}   "
-        f"updates {clock.updates}   re-inits {clock.reinits}"
+        f"[b]clock[/] {state} ({clock.updates} updates, {clock.reinits} re-inits)  "
+        f"rate {clock.rate_ppm:+.1f} ppm  offset {clock.offset_s:.3f} s  residual {residual}"
     )
 
 
@@ -125,7 +125,7 @@ def _values(frame: SensorFrame | None) -> list[Text]:
         ("acc (g)", vec(frame.acc_g, "+.3f")),
         ("gyro (deg/s)", vec(frame.gyro_dps, "+.2f")),
         ("attitude (deg)", f"roll {roll:+.1f}  pitch {pitch:+.1f}  yaw {yaw:.1f}"),
-        ("RC", vec(frame.rc, "d") + "   (roll pitch yaw throttle aux3 aux4)"),
+        ("RC (R P Y T A3 A4)", vec(frame.rc, "d")),
         ("RPM", vec(frame.rpm, "d")),
         ("vbat (V)", f"{frame.vbat_v:.2f}"),
     ]
