@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import tempfile
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -20,8 +21,6 @@ from wftool.verify.monitor import StreamMonitor, StreamSummary
 from wftool.verify.uplink import UplinkTracker
 
 err = Console(stderr=True, highlight=False)
-
-FC_DROPS_DEFAULT_PCT = 0.1
 
 SITL_MAX_SPREAD_MS = 50.0
 SITL_MAX_FC_DROPS_PCT = 1.0
@@ -49,8 +48,8 @@ criteria_options = _options(
     click.option("--max-spread-ms", type=float, help="Max FC-interval P99−P1 [half a period]."),
     click.option("--max-loss", type=float, default=0.1, show_default=True,
                  help="Max transport loss, % of frames."),
-    click.option("--max-fc-drops", type=float, default=FC_DROPS_DEFAULT_PCT, show_default=True,
-                 help="Max frames the FC dropped (queue full), % of frames."),
+    click.option("--max-fc-drops", type=float,
+                 help="Max frames the FC dropped (queue full), % of frames [0.1; virtual FC: 1]."),
     click.option("--max-errors", type=int, default=0, show_default=True,
                  help="Max rejected chunks (COBS, length, version, CRC)."),
     click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout."),
@@ -68,14 +67,16 @@ run_options = _options(
 
 
 def _criteria(uplink: bool, **options: Any) -> Criteria:
-    return Criteria(
+    criteria = Criteria(
         min_rate_hz=options["min_rate"],
         max_spread_ms=options["max_spread_ms"],
         max_loss_pct=options["max_loss"],
-        max_drops_pct=options["max_fc_drops"],
         max_errors=options["max_errors"],
         uplink=uplink,
     )
+    if options["max_fc_drops"] is not None:
+        criteria = replace(criteria, max_drops_pct=options["max_fc_drops"])
+    return criteria
 
 
 def _finish(summary: StreamSummary, criteria: Criteria, as_json: bool) -> None:
@@ -226,7 +227,7 @@ def sitl(
         if verify_s is not None:
             if options["max_spread_ms"] is None:
                 options["max_spread_ms"] = SITL_MAX_SPREAD_MS
-            if options["max_fc_drops"] == FC_DROPS_DEFAULT_PCT:
+            if options["max_fc_drops"] is None:
                 options["max_fc_drops"] = SITL_MAX_FC_DROPS_PCT
             verify_stream(session.fsp_url, DEFAULT_BAUDRATE, verify_s, **options)
             return
