@@ -12,18 +12,13 @@ from dataclasses import dataclass, field
 
 import pytest
 
-from wftool.fsp import FcClock, KalmanClockEstimator, SensorFrame, StateDecoder, StatePacket
+from tests.fsp.test_decoder import frame as blank_frame
+from wftool.fsp import FcClock, KalmanClockEstimator, StateDecoder, StatePacket
 from wftool.fsp.encoder import encode_state
 
 PERIOD_US = 953
 MIN_DELAY_S = 0.0006
 JITTER_S = 0.0003  # mean of the exponential part of the one-way delay
-
-
-def blank_frame(t_us: int) -> SensorFrame:
-    return SensorFrame(
-        t_us % 2**32, (0, 0, 0), 0, 0.0, (0, 0, 0), (0, 0, 0, 0), (0,) * 6, (0,) * 4, 0
-    )
 
 
 @dataclass

@@ -10,6 +10,7 @@ from rich.progress import BarColumn, Progress, TaskID, TextColumn
 from rich.table import Table
 
 from wftool import doctor as doctor_checks
+from wftool.backup import DEFAULT_BACKUP_DIR
 from wftool.board import Board, SerialBoard
 from wftool.errors import ProtocolError, WftoolError
 from wftool.flash import flasher
@@ -47,7 +48,7 @@ port_option = click.option(
 backup_dir_option = click.option(
     "--backup-dir",
     type=click.Path(file_okay=False, path_type=Path),
-    default=Path("backups"),
+    default=DEFAULT_BACKUP_DIR,
     show_default=True,
     help="Where configuration backups are written.",
 )
