@@ -17,10 +17,10 @@ from pathlib import Path
 
 import pytest
 
-from wftool.build import BuildOptions, BuildResult, build
-from wftool.build.project import Project
 from wftool.cli import main
-from wftool.sitl import VirtualFC
+from wftool.firmware import BuildOptions, BuildResult, build
+from wftool.firmware.project import Project
+from wftool.sitl.process import VirtualFC
 
 REPO = Path(__file__).resolve().parent.parent
 BUILD_JOBS = min(os.cpu_count() or 1, 2)

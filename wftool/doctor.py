@@ -19,7 +19,7 @@ from pathlib import Path
 from serial.tools import list_ports
 
 from wftool.errors import UsageError
-from wftool.transport import STM32_DFU, STM32_VCP, UsbId
+from wftool.fc.transport import STM32_DFU, STM32_VCP, UsbId
 
 SYSTEM_RULES_DIRS = (
     Path("/etc/udev/rules.d"),

@@ -38,6 +38,18 @@ class BuildError(WftoolError):
     """Fetching, patching or compiling the firmware failed."""
 
 
+class TreeError(BuildError):
+    """The Betaflight tree is missing, dirty, on the wrong commit or cannot be fetched."""
+
+
+class PatchError(BuildError):
+    """The patch series does not apply, or cannot be exported."""
+
+
+class ToolchainError(BuildError):
+    """No usable compiler, a version mismatch under --strict-toolchain, or a failed install."""
+
+
 class FlashError(WftoolError):
     """Flashing did not complete or did not verify."""
 
@@ -58,6 +70,10 @@ class CliCommandError(ProtocolError):
 
 class ParameterError(UsageError):
     """Parameters the flight controller would reject; found before anything was changed."""
+
+
+class VerificationFailed(WftoolError):
+    """The stream ran but did not meet the criteria (exit 1)."""
 
 
 class SitlError(WftoolError):

@@ -12,7 +12,7 @@ import pytest
 
 from tests.conftest import run_cli as run
 from wftool.cli import fc as fc_commands
-from wftool.sitl import VirtualFC
+from wftool.sitl.process import VirtualFC
 
 
 @pytest.fixture

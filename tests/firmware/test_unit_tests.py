@@ -6,8 +6,8 @@ import shutil
 
 import pytest
 
-from wftool.build.project import Project
-from wftool.build.unittests import run_unit_tests, series_tests
+from wftool.firmware.project import Project
+from wftool.firmware.unittests import run_unit_tests, series_tests
 
 pytestmark = pytest.mark.slow
 

@@ -20,11 +20,11 @@ from tests.flash.standin import UNTOUCHED, StandinDfuUtil
 from wftool.cli import fc as fc_commands
 from wftool.cli import main
 from wftool.errors import FlashError, UsageError
+from wftool.fc.msp import BoardInfo, BuildInfo, MspClient
+from wftool.fc.params import apply_plan, plan_from_assignments
 from wftool.flash.flasher import Manifest, find_manifest, flash_firmware
 from wftool.flash.image import load_image
-from wftool.msp import BoardInfo, BuildInfo, MspClient
-from wftool.params import apply_plan, plan_from_assignments
-from wftool.sitl import VirtualFC
+from wftool.sitl.process import VirtualFC
 
 
 def _build_of(fc: VirtualFC) -> BuildInfo:

@@ -17,9 +17,9 @@ import pytest
 
 from tests.conftest import run_cli
 from wftool.cli.stream import SITL_MAX_FC_DROPS_PCT, SITL_MAX_SPREAD_MS
+from wftool.sitl.session import Motion, VirtualFcSession
 from wftool.verify.live import LiveOptions, run_live
 from wftool.verify.monitor import StreamMonitor
-from wftool.virtual_fc import Motion, VirtualFcSession
 
 pytestmark = pytest.mark.slow
 

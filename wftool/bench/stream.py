@@ -19,11 +19,11 @@ from pathlib import Path
 from rich.console import Console
 
 from wftool.fsp import StatePacket
+from wftool.sitl.session import VirtualFcSession
 from wftool.verify.criteria import Criteria, judge
 from wftool.verify.dashboard import render
 from wftool.verify.live import LiveOptions, run_live
 from wftool.verify.monitor import StreamMonitor, StreamSummary
-from wftool.virtual_fc import VirtualFcSession
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,7 @@ import click
 from rich.console import Console
 from rich.table import Table
 
-from wftool.build.bench import bench_build
+from wftool.bench.build import bench_build
 from wftool.cli.build import build_options, options_from, project_from
 
 out = Console(highlight=False, width=None if sys.stdout.isatty() else 200)

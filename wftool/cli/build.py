@@ -12,7 +12,8 @@ import click
 from rich.console import Console
 from rich.table import Table
 
-from wftool.build import (
+from wftool.errors import BuildError
+from wftool.firmware import (
     BuildFlags,
     BuildOptions,
     BuildResult,
@@ -22,9 +23,8 @@ from wftool.build import (
     patches,
     tree,
 )
-from wftool.build.project import PROJECT_ENV, Project, exclusive
-from wftool.build.targets import resolve_target
-from wftool.errors import BuildError
+from wftool.firmware.project import PROJECT_ENV, Project, exclusive
+from wftool.firmware.targets import resolve_target
 
 # Piped output (CI logs, scripts) gets room for full paths instead of 80 folded columns.
 out = Console(highlight=False, width=None if sys.stdout.isatty() else 200)
@@ -251,7 +251,7 @@ def patches_export(project_dir: Path | None) -> None:
 @project_option
 def patches_test(names: tuple[str, ...], project_dir: Path | None) -> None:
     """Run Betaflight unit tests on the patched tree (default: the ones the series adds)."""
-    from wftool.build.unittests import run_unit_tests
+    from wftool.firmware.unittests import run_unit_tests
 
     project = project_from(project_dir)
     with locked(project):

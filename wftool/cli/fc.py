@@ -10,13 +10,12 @@ from rich.progress import BarColumn, Progress, TaskID, TextColumn
 from rich.table import Table
 
 from wftool import doctor as doctor_checks
-from wftool.backup import DEFAULT_BACKUP_DIR
-from wftool.board import Board, SerialBoard
 from wftool.errors import ProtocolError, WftoolError
-from wftool.flash import flasher
-from wftool.fsp_setup import DEFAULT_RATE_HZ, fsp_planner
-from wftool.msp import MspClient
-from wftool.params import (
+from wftool.fc.backup import DEFAULT_BACKUP_DIR
+from wftool.fc.board import Board, SerialBoard
+from wftool.fc.fsp_setup import DEFAULT_RATE_HZ, fsp_planner
+from wftool.fc.msp import MspClient
+from wftool.fc.params import (
     ChangeReport,
     Plan,
     Planner,
@@ -25,6 +24,7 @@ from wftool.params import (
     plan_from_assignments,
     plan_from_file,
 )
+from wftool.flash import flasher
 
 console = Console(highlight=False, soft_wrap=True)
 status = Console(stderr=True, highlight=False, soft_wrap=True)

@@ -212,7 +212,7 @@ def sitl(
     verify_s: float | None, project_dir: Path | None, **options: Any,
 ) -> None:  # fmt: skip
     """Run the virtual FC: the patched SITL with FSP on UART2, until Ctrl-C (or --verify)."""
-    from wftool.virtual_fc import Motion, VirtualFcSession
+    from wftool.sitl.session import Motion, VirtualFcSession
 
     if binary is None:
         binary = build_sitl(project_dir)
@@ -240,7 +240,7 @@ def sitl(
 
 def build_sitl(project_dir: Path | None) -> Path:
     """The patched SITL program, built (or found up to date) in the wftool checkout."""
-    from wftool.build import build, find_project
+    from wftool.firmware import build, find_project
 
     result = build(find_project(project_dir), "sitl", console=err)
     if not result.up_to_date:

@@ -14,8 +14,17 @@ from pathlib import Path
 
 from intelhex import IntelHex
 
-from wftool.board import Board
 from wftool.errors import FlashError, UsageError, WftoolError
+from wftool.fc.board import Board
+from wftool.fc.msp import BoardInfo, BuildInfo, FcIdentity, MspClient, RebootMode
+from wftool.fc.params import (
+    ChangeReport,
+    Log,
+    apply_plan,
+    configuration_session,
+    plan_from_file,
+    quiet,
+)
 from wftool.flash import dfu
 from wftool.flash.image import (
     MCU_FLASH,
@@ -24,15 +33,6 @@ from wftool.flash.image import (
     erased_sectors,
     load_image,
     write_regions,
-)
-from wftool.msp import BoardInfo, BuildInfo, FcIdentity, MspClient, RebootMode
-from wftool.params import (
-    ChangeReport,
-    Log,
-    apply_plan,
-    configuration_session,
-    plan_from_file,
-    quiet,
 )
 
 DEFAULT_BUILD_DIR = Path("build")

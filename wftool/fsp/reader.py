@@ -20,10 +20,10 @@ from types import TracebackType
 import serial
 
 from wftool.errors import PortError
+from wftool.fc.transport import open_port, port_errors
 from wftool.fsp.decoder import StateDecoder
 from wftool.fsp.encoder import CommandSender
 from wftool.fsp.packets import SensorFrame, StatePacket
-from wftool.transport import open_port, port_errors
 
 DEFAULT_BAUDRATE = 2_000_000
 _READ_SIZE = 1 << 16

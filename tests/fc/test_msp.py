@@ -1,0 +1,145 @@
+"""MSP framing (v1, v2, jumbo, errors) and the typed calls against the real SITL."""
+
+from __future__ import annotations
+
+import socket
+import struct
+import time
+
+import pytest
+
+from wftool.errors import MspError
+from wftool.fc.msp import (
+    FEATURE_RX_MSP,
+    Cmd,
+    MspClient,
+    MspVersion,
+    RebootMode,
+    crc8_dvb_s2,
+    decode_frame,
+    encode_request,
+)
+from wftool.sitl.process import VirtualFC
+
+
+def test_crc8_dvb_s2_check_value() -> None:
+    # The catalogue check value of CRC-8/DVB-S2 (poly 0xD5, init 0) over "123456789".
+    assert crc8_dvb_s2(b"123456789") == 0xBC
+
+
+def test_v1_request_matches_the_classic_hand_written_frame() -> None:
+    # MSP_API_VERSION as every MSP tool sends it: $M< size=0 cmd=1 checksum=1.
+    assert encode_request(Cmd.API_VERSION, version=MspVersion.V1) == b"$M<\x00\x01\x01"
+
+
+def test_v2_request_layout() -> None:
+    frame = encode_request(0x1234, b"\xaa", MspVersion.V2)
+    assert frame[:3] == b"$X<"
+    assert struct.unpack("<BHH", frame[3:8]) == (0, 0x1234, 1)
+    assert frame[8] == 0xAA
+    assert frame[9] == crc8_dvb_s2(frame[3:9])
+
+
+def _v1_reply(cmd: int, payload: bytes, direction: bytes = b">") -> bytes:
+    size = (
+        bytes([len(payload)]) if len(payload) < 255 else b"\xff" + struct.pack("<H", len(payload))
+    )
+    body = size[:1] + bytes([cmd]) + size[1:] + payload
+    checksum = 0
+    for byte in body:
+        checksum ^= byte
+    return b"$M" + direction + body + bytes([checksum])
+
+
+def test_decode_skips_noise_and_reads_a_jumbo_frame() -> None:
+    payload = bytes(range(256)) * 2
+    frame, used = decode_frame(b"\r\n# junk" + _v1_reply(116, payload) + b"$M>")
+    assert frame is not None
+    assert (frame.cmd, frame.payload, frame.error) == (116, payload, False)
+    assert used == len(b"\r\n# junk") + len(_v1_reply(116, payload))
+
+
+def test_decode_reports_incomplete_frames_without_consuming_them() -> None:
+    whole = _v1_reply(1, b"\x00\x01\x2f")
+    assert decode_frame(whole[:-1]) == (None, 0)
+
+
+def test_decode_error_reply() -> None:
+    frame, _ = decode_frame(_v1_reply(250, b"", b"!"))
+    assert frame is not None and frame.error
+
+
+def test_decode_rejects_bad_checksums() -> None:
+    good = _v1_reply(1, b"\x00\x01\x2f")
+    with pytest.raises(MspError, match="checksum"):
+        decode_frame(good[:-1] + bytes([good[-1] ^ 0xFF]))
+    v2 = b"$X>" + struct.pack("<BHH", 0, 1, 1) + b"\x05"
+    with pytest.raises(MspError, match="CRC"):
+        decode_frame(v2 + bytes([crc8_dvb_s2(v2[3:]) ^ 1]))
+
+
+def test_a_silent_peer_times_out() -> None:
+    with socket.socket() as server:
+        server.bind(("127.0.0.1", 0))
+        server.listen()
+        with MspClient.open(f"socket://127.0.0.1:{server.getsockname()[1]}", timeout=0.3) as msp:
+            started = time.monotonic()
+            with pytest.raises(MspError, match="no MSP reply to MSP_API_VERSION"):
+                msp.api_version()
+            assert 0.3 <= time.monotonic() - started < 2
+
+
+@pytest.mark.parametrize("version", [MspVersion.V1, MspVersion.V2])
+def test_identify_sitl(virtual_fc: VirtualFC, version: MspVersion) -> None:
+    with MspClient.open(virtual_fc.url, version=version) as msp:
+        fc = msp.identify()
+    assert fc.variant == "BTFL"
+    assert fc.version == "2025.12.5"
+    assert (fc.api.major, fc.api.minor) == (1, 47)
+    assert fc.board.board_identifier == "SITL"
+    assert fc.board.target_name == "SITL"
+    assert not fc.board.has_flash_bootloader
+    assert len(fc.build.git_revision) == 7
+    time.strptime(f"{fc.build.date} {fc.build.time}", "%b %d %Y %H:%M:%S")
+
+
+def test_unknown_command_gets_an_error_reply(virtual_fc: VirtualFC) -> None:
+    with MspClient.open(virtual_fc.url) as msp:
+        with pytest.raises(MspError, match="error reply"):
+            msp.request(0x3FFF)
+        assert msp.fc_variant() == "BTFL"  # the link is still in step
+
+
+def test_sensor_and_state_replies_have_their_shapes(virtual_fc: VirtualFC) -> None:
+    with MspClient.open(virtual_fc.url) as msp:
+        imu = msp.raw_imu()
+        attitude = msp.attitude()
+        analog = msp.analog()
+        rc = msp.rc()
+    assert len(imu.acc) == len(imu.gyro) == len(imu.mag) == 3
+    assert -180 <= attitude.roll_deg <= 180 and 0 <= attitude.yaw_deg <= 360
+    assert analog.voltage_v >= 0 and 0 <= analog.rssi <= 1023
+    assert len(rc) >= 8 and all(800 <= value <= 2200 for value in rc)
+
+
+def test_set_raw_rc_drives_the_msp_receiver(virtual_fc: VirtualFC) -> None:
+    # SITL's default receiver is RX_MSP; channels arrive AETR and the FC keeps them AERT.
+    with MspClient.open(virtual_fc.url) as msp:
+        assert msp.features() & FEATURE_RX_MSP
+        for _ in range(5):
+            msp.set_raw_rc([1234, 1600, 1100, 1700, 1000, 2000, 1500, 1500])
+            time.sleep(0.05)
+        assert msp.rc()[:6] == (1234, 1600, 1700, 1100, 1000, 2000)
+
+
+def test_reboot_to_bootloader_resets_sitl(virtual_fc: VirtualFC) -> None:
+    with MspClient.open(virtual_fc.url) as msp:
+        msp.reboot(RebootMode.BOOTLOADER_ROM)
+    assert virtual_fc._process is not None
+    assert virtual_fc._process.wait(5) == 0
+    assert b"[system]ResetToBootloader!" in virtual_fc.log_path.read_bytes()
+
+
+def test_reboot_mode_the_firmware_lacks_is_refused(virtual_fc: VirtualFC) -> None:
+    with MspClient.open(virtual_fc.url) as msp, pytest.raises(MspError, match="MSP_REBOOT"):
+        msp.reboot(RebootMode.MSC)  # SITL has no USB mass storage

@@ -1,0 +1,68 @@
+"""Betaflight's own unit tests (src/test, gtest), for the series' firmware code.
+
+The series adds its tests beside Betaflight's; `series_tests` finds them from the patched
+commits, so a new test in patches/ is run without being listed anywhere. The tree is
+fetched without src/test and lib/test; running tests checks them out first.
+"""
+
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+from dataclasses import dataclass
+from pathlib import Path
+
+from wftool.errors import ToolchainError
+from wftool.firmware import patches, tree
+from wftool.firmware.git import git, git_out
+from wftool.firmware.project import Project
+from wftool.firmware.targets import SITL, resolve_target
+
+TEST_PATHS = ("src/test", "lib/test")
+_UNIT_TEST = re.compile(r"^src/test/unit/(\w+_unittest)\.cc$")
+_TEST_COMPILERS = ("clang", "clang++")
+"""src/test/Makefile falls back to plain clang when its preferred clang-18 is absent."""
+
+
+@dataclass(frozen=True)
+class UnitTestRun:
+    name: str
+    passed: bool
+    output: str
+
+
+def series_tests(project: Project) -> list[str]:
+    """The unit tests the patch series adds (make target names, e.g. test_fsp_unittest)."""
+    added = git_out(
+        ["diff", "--name-only", "--diff-filter=A", tree.pinned_commit(project), "HEAD"],
+        project.tree,
+    )
+    return sorted(f"test_{m.group(1)}" for m in map(_UNIT_TEST.match, added.splitlines()) if m)
+
+
+def run_unit_tests(project: Project, names: list[str] | None = None) -> list[UnitTestRun]:
+    """Apply the series, check out the test tree, run NAMES (default: the series' tests)."""
+    missing = [c for c in _TEST_COMPILERS if shutil.which(c) is None]
+    if missing:
+        raise ToolchainError(
+            f"Betaflight's unit tests need {' and '.join(missing)} (Debian: clang)"
+        )
+    tree.ensure_tree(project, resolve_target(project, SITL))
+    patches.apply(project)
+    _check_out_tests(project.tree)
+    runs = []
+    for name in names if names is not None else series_tests(project):
+        proc = subprocess.run(
+            ["make", name], cwd=project.tree, capture_output=True, text=True, check=False
+        )
+        runs.append(UnitTestRun(name, proc.returncode == 0, proc.stdout + proc.stderr))
+    return runs
+
+
+def _check_out_tests(repo: Path) -> None:
+    excluded = tree.current_exclusions(repo)
+    wanted = excluded - set(TEST_PATHS)
+    if wanted != excluded:
+        patterns = tree.sparse_patterns(sorted(wanted))
+        git(["sparse-checkout", "set", "--no-cone", *patterns], repo)

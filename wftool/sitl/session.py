@@ -1,0 +1,176 @@
+"""The virtual FC: the patched SITL running with FSP configured, optionally in motion.
+
+`VirtualFcSession` is what `wftool sitl` and the end-to-end tests start: a `VirtualFC`
+process in a scratch directory, FSP put on UART2 through the CLI with the same safe
+workflow a lab uses on hardware, and — on request — synthetic IMU motion fed through
+SITL's simulator input (UDP 9003), so the stream carries moving values.
+"""
+
+from __future__ import annotations
+
+import math
+import socket
+import struct
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from wftool.fc.fsp_setup import DEFAULT_RATE_HZ, fsp_planner
+from wftool.fc.params import apply_plan
+from wftool.sitl.process import LOOPBACK, VirtualFC, uart_url
+
+FSP_UART = 2
+SIM_STATE_PORT = 9003
+"""SITL's simulator input: one `fdm_packet` (18 doubles) per UDP datagram."""
+GRAVITY = 9.80665
+
+
+@dataclass(frozen=True)
+class Motion:
+    """A gentle, smooth flight-like wobble: roll and pitch oscillate, yaw turns slowly."""
+
+    roll_deg: float = 20.0
+    pitch_deg: float = 12.0
+    roll_hz: float = 0.4
+    pitch_hz: float = 0.27
+    yaw_deg_per_s: float = 15.0
+
+    def state(self, t: float, timestamp: float) -> bytes:
+        """SITL's fdm_packet for motion time `t`: angular rates, specific force, attitude."""
+        roll = math.radians(self.roll_deg) * math.sin(2 * math.pi * self.roll_hz * t)
+        pitch = math.radians(self.pitch_deg) * math.sin(2 * math.pi * self.pitch_hz * t)
+        yaw = math.radians(self.yaw_deg_per_s * t) % (2 * math.pi)
+        roll_rate = (
+            math.radians(self.roll_deg)
+            * 2
+            * math.pi
+            * self.roll_hz
+            * math.cos(2 * math.pi * self.roll_hz * t)
+        )
+        pitch_rate = (
+            math.radians(self.pitch_deg)
+            * 2
+            * math.pi
+            * self.pitch_hz
+            * math.cos(2 * math.pi * self.pitch_hz * t)
+        )
+        yaw_rate = math.radians(self.yaw_deg_per_s)
+        # Hovering: the accelerometer feels gravity's reaction, in body axes (NED).
+        accel = (
+            GRAVITY * math.sin(pitch),
+            -GRAVITY * math.sin(roll) * math.cos(pitch),
+            -GRAVITY * math.cos(roll) * math.cos(pitch),
+        )
+        cr, sr = math.cos(roll / 2), math.sin(roll / 2)
+        cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
+        cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
+        quaternion = (
+            cr * cp * cy + sr * sp * sy,
+            sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy,
+        )
+        return struct.pack(
+            "<18d", timestamp, roll_rate, pitch_rate, yaw_rate, *accel, *quaternion,
+            0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 101325.0,
+        )  # fmt: skip
+
+
+class MotionFeeder:
+    """Sends `Motion` states to SITL from a daemon thread until stopped.
+
+    SITL rescales its own clock by simulator time over real time whenever a state packet's
+    timestamp is less than 20 ms after the previous one, so send jitter would make the FC
+    clock run fast or slow. The packets' simulator timestamps therefore advance by exactly
+    `SIM_STEP_S` each, which SITL never uses for rescaling: its clock stays real time.
+    """
+
+    SIM_STEP_S = 0.025
+
+    def __init__(self, motion: Motion, rate_hz: float = 1.0 / SIM_STEP_S) -> None:
+        self._motion = motion
+        self._period = 1.0 / rate_hz
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="sitl-motion", daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(2.0)
+
+    def _run(self) -> None:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+            start = time.monotonic()
+            next_send = start
+            sent = 0
+            while not self._stop.is_set():
+                state = self._motion.state(time.monotonic() - start, sent * self.SIM_STEP_S)
+                sock.sendto(state, (LOOPBACK, SIM_STATE_PORT))
+                sent += 1
+                next_send += self._period
+                self._stop.wait(max(0.0, next_send - time.monotonic()))
+
+
+class VirtualFcSession:
+    """The patched SITL with FSP on UART2; a context manager that never leaves a process."""
+
+    def __init__(
+        self,
+        binary: Path,
+        workdir: Path,
+        *,
+        baud: int = 2_000_000,
+        rate_hz: int = DEFAULT_RATE_HZ,
+        motion: Motion | None = None,
+    ) -> None:
+        self.fc = VirtualFC(binary, workdir)
+        self.workdir = workdir
+        self._baud = baud
+        self._rate_hz = rate_hz
+        self._feeder = MotionFeeder(motion) if motion is not None else None
+
+    @property
+    def msp_url(self) -> str:
+        return self.fc.url
+
+    @property
+    def fsp_url(self) -> str:
+        return uart_url(FSP_UART)
+
+    def start(self) -> VirtualFcSession:
+        self.fc.start()
+        try:
+            apply_plan(
+                self.fc, fsp_planner(FSP_UART, self._baud, self._rate_hz), self.workdir / "backups"
+            )
+            if self._feeder is not None:
+                self._feeder.start()
+        except BaseException:
+            self.fc.stop()
+            raise
+        return self
+
+    def serve(self, on_reset: Callable[[], None] | None = None) -> None:
+        """Keep the FC up until interrupted: a reset (CLI save, reboot) ends the SITL
+        process, so start it again, as a board's reset circuit would."""
+        while True:
+            time.sleep(0.2)
+            if not self.fc.running:
+                if on_reset is not None:
+                    on_reset()
+                self.fc.start()
+
+    def stop(self) -> None:
+        if self._feeder is not None:
+            self._feeder.stop()
+        self.fc.stop()
+
+    def __enter__(self) -> VirtualFcSession:
+        return self.start()
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.stop()
