@@ -69,7 +69,9 @@ def test_missing_tools_fail(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> 
 def test_toolchain_version_is_compared_with_betaflights(
     monkeypatch: pytest.MonkeyPatch, tmp_path: Path
 ) -> None:
-    _program(tmp_path, "arm-none-eabi-gcc", "arm-none-eabi-gcc (15:12.2.rel1-1) 12.2.1 20221205")
+    gcc = tmp_path / "arm-none-eabi-gcc"  # Debian's 12.2, as `-dumpversion` answers
+    gcc.write_text("#!/bin/sh\necho 12.2.1\n")
+    gcc.chmod(0o755)
     monkeypatch.setenv("PATH", str(tmp_path))
     check = doctor.check_toolchain()
     assert check.status == "warn"

@@ -18,8 +18,10 @@ from pathlib import Path
 
 from serial.tools import list_ports
 
-from wftool.errors import UsageError
+from wftool.errors import ToolchainError, UsageError
 from wftool.fc.transport import STM32_DFU, STM32_VCP, UsbId
+from wftool.firmware import toolchain
+from wftool.firmware.project import Project, find_project
 
 SYSTEM_RULES_DIRS = (
     Path("/etc/udev/rules.d"),
@@ -35,8 +37,6 @@ SUBSYSTEMS=="usb", ATTRS{{idVendor}}=="{STM32_DFU.vid:04x}", ATTRS{{idProduct}}=
 # Betaflight's USB serial port; ModemManager must not probe it
 SUBSYSTEMS=="usb", ATTRS{{idVendor}}=="{STM32_VCP.vid:04x}", ATTRS{{idProduct}}=="{STM32_VCP.pid:04x}", TAG+="uaccess", ENV{{ID_MM_DEVICE_IGNORE}}="1"
 """  # noqa: E501 — udev rules are one line each
-BETAFLIGHT_GCC = "13.3.1"
-"""GCC_REQUIRED_VERSION in the pinned Betaflight's mk/tools.mk."""
 
 
 @dataclass(frozen=True)
@@ -57,27 +57,33 @@ def _version_line(program: str) -> str | None:
     return (result.stdout or result.stderr).strip().splitlines()[0]
 
 
-def check_toolchain() -> Check:
-    line = _version_line("arm-none-eabi-gcc")
-    if line is None:
+def check_toolchain(project: Project | None = None) -> Check:
+    """arm-none-eabi-gcc, found as `wftool build` finds it ($WFTOOL_TOOLCHAIN, the installed
+    release, PATH), against the version the pinned Betaflight requires."""
+    if project is None:
+        try:
+            project = find_project()
+        except UsageError:
+            project = None  # outside a checkout: the pinned release still says the version
+    try:
+        required, installed = toolchain.arm_requirement(project.tree if project else None)
+        found = toolchain.find_arm_toolchain(required, installed=installed)
+    except ToolchainError as exc:
         return Check(
             "toolchain",
             "fail",
-            "arm-none-eabi-gcc is not on PATH",
-            "apt install gcc-arm-none-eabi libnewlib-arm-none-eabi (or scripts/setup)",
+            str(exc),
+            "wftool toolchain install (or apt install gcc-arm-none-eabi libnewlib-arm-none-eabi)",
         )
-    match = re.search(r"\) (\d+\.\d+\.\d+)", line)
-    version = match[1] if match else line
-    if version != BETAFLIGHT_GCC:
+    if not found.matches:
         return Check(
             "toolchain",
             "warn",
-            f"arm-none-eabi-gcc {version}; Betaflight 2025.12 "
-            f"expects {BETAFLIGHT_GCC} and refuses others unless GCC_REQUIRED_VERSION "
-            "is overridden",
-            "`make arm_sdk_install` in the Betaflight tree fetches the expected toolchain",
+            f"arm-none-eabi-gcc {found.version}; Betaflight 2025.12 expects {required}: "
+            "wftool build warns, --strict-toolchain refuses",
+            "`wftool toolchain install` fetches the expected toolchain",
         )
-    return Check("toolchain", "ok", f"arm-none-eabi-gcc {version}")
+    return Check("toolchain", "ok", f"arm-none-eabi-gcc {found.version} ({found.gcc})")
 
 
 def check_dfu_util() -> Check:

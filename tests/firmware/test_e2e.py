@@ -57,11 +57,11 @@ def test_fresh_clone_gets_a_sparse_pinned_submodule(project, sitl):
     assert not (project.tree / "lib" / "main" / "STM32H7").exists()
     assert (project.tree / ".git").is_file()  # absorbed into the superproject's modules/
     base = run_git(project.tree, "rev-list", "--max-parents=0", "HEAD")
-    assert sitl.manifest["betaflight_commit"] == pin == base
+    assert sitl.manifest.betaflight_commit == pin == base
 
 
 def test_sitl_manifest_and_runnable_program(project, sitl, tmp_path):
-    data = sitl.manifest
+    data = sitl.manifest.to_json()
     assert data["schema"] == 1
     assert (data["target"], data["board"], data["mcu"]) == ("sitl", "SITL", "SITL")
     assert data["betaflight_version"] == "2025.12.5"
@@ -104,8 +104,8 @@ def test_flags_select_their_own_objects(project, sitl):
         BuildOptions(jobs=JOBS, flags=BuildFlags(fsp_rate_hz=500, defines=("WFTOOL_E2E=1",))),
     )
     assert not flagged.up_to_date and flagged.compiled > 200
-    assert flagged.manifest["flags"]["fsp_rate_hz"] == 500
-    assert flagged.manifest["flags"]["defines"] == ["WFTOOL_E2E=1"]
+    assert flagged.manifest.to_json()["flags"]["fsp_rate_hz"] == 500
+    assert flagged.manifest.to_json()["flags"]["defines"] == ["WFTOOL_E2E=1"]
     log = (flagged.out_dir / "build.log").read_text()
     assert "-DFSP_RATE_HZ_DEFAULT=500 -DWFTOOL_E2E=1" in log
 
@@ -113,12 +113,12 @@ def test_flags_select_their_own_objects(project, sitl):
 
     assert not back.up_to_date  # the outputs are switched back ...
     assert back.compiled == 0  # ... from objects that are still up to date
-    assert back.manifest["flags"]["defines"] == []
+    assert back.manifest.to_json()["flags"]["defines"] == []
     assert build(project, "sitl", BuildOptions(jobs=JOBS)).up_to_date
 
 
 def test_speedybeef7v3_is_flashable_and_traceable(project, board):
-    data = board.manifest
+    data = board.manifest.to_json()
     assert (data["target"], data["board"], data["mcu"]) == ("speedybeef7v3", BOARD, "STM32F7X2")
     config = project.config_dir / "configs" / BOARD / "config.h"
     assert data["board_config_sha256"] == _sha256(config)
@@ -147,7 +147,7 @@ def test_cli_build_prints_the_summary(project, sitl):
 
 
 def test_toolchain_mismatch_warns_or_fails_when_strict(project, board):
-    found = board.manifest["toolchain"]
+    found = board.manifest.toolchain
     if found["version"] == found["required"]:
         pytest.skip(f"this arm-none-eabi-gcc is the required {found['required']}: no mismatch")
     assert any("--strict-toolchain" in warning for warning in board.warnings)

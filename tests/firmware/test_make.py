@@ -102,7 +102,7 @@ def test_failure_names_the_first_error_and_the_log(fake_tree, tmp_path, monkeypa
     monkeypatch.chdir(tmp_path)
 
     with pytest.raises(BuildError) as failure:
-        make.run(command, log, console=None)
+        make.run(command, log)
 
     message = str(failure.value)
     assert message.startswith(f"tree{os.sep}util.c:3: error: 'missing_name' undeclared")

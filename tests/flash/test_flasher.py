@@ -9,8 +9,8 @@ own build, so the success tests flash an image that carries SITL's build strings
 
 from __future__ import annotations
 
-import json
 import os
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -22,7 +22,9 @@ from wftool.cli import main
 from wftool.errors import FlashError, UsageError
 from wftool.fc.msp import BoardInfo, BuildInfo, MspClient
 from wftool.fc.params import apply_plan, plan_from_assignments
-from wftool.flash.flasher import Manifest, find_manifest, flash_firmware
+from wftool.firmware.manifest import BuildFlags, Manifest
+from wftool.firmware.project import PROJECT_ENV
+from wftool.flash.flasher import find_manifest, flash_firmware, resolve_firmware
 from wftool.flash.image import load_image
 from wftool.sitl.process import VirtualFC
 
@@ -43,18 +45,33 @@ def _image(path: Path, build: BuildInfo, *strings: str) -> Path:
 
 
 def _manifest(directory: Path, hex_path: Path, **fields: str) -> Path:
+    """A schema-1 manifest.json in DIRECTORY for HEX_PATH, as `wftool build` writes it."""
     directory.mkdir(parents=True, exist_ok=True)
-    data = {
-        "target": "SPEEDYBEEF7V3",
-        "board": "SPEEDYBEEF7V3",
-        "mcu": "STM32F7X2",
-        "git_revision": "0000000",
-        "artifacts": {"hex": os.path.relpath(hex_path, directory)},
-    }
-    data.update(fields)
-    path = directory / "manifest.json"
-    path.write_text(json.dumps(data))
-    return path
+    manifest = Manifest(
+        path=directory / "manifest.json",
+        target="SPEEDYBEEF7V3",
+        board="SPEEDYBEEF7V3",
+        mcu="STM32F7X2",
+        betaflight_commit="0" * 40,
+        betaflight_head="1" * 40,
+        betaflight_version="2025.12.5",
+        git_revision="0000000",
+        patch_series_sha256="2" * 64,
+        patches=[],
+        board_config_sha256=None,
+        toolchain={"path": "arm-none-eabi-gcc", "version": "13.3.1", "required": "13.3.1",
+                   "strict": False},
+        flags=BuildFlags(),
+        usage=None,
+        build_seconds=1.0,
+        built_at="2025-01-01T00:00:00+00:00",
+        artifacts={"hex": os.path.relpath(hex_path, directory), "elf": "fw.elf"},
+        artifact_sha256={},
+        inputs_sha256="3" * 64,
+    )  # fmt: skip
+    manifest = replace(manifest, **fields)
+    manifest.write()
+    return manifest.path
 
 
 def test_mismatched_firmware_is_refused_before_anything_happens(
@@ -206,3 +223,56 @@ def test_wftool_flash_command_end_to_end(
     assert out.splitlines()[0] == "flashed fw.hex; erased sectors 0, 2"
     assert "Download" in err and "100%" in err  # the progress bars
     assert "get_status failed after leave, as usual" in err
+
+
+def _project(root: Path) -> Path:
+    """A directory that is a wftool project (its .gitmodules declares betaflight/)."""
+    root.mkdir(parents=True, exist_ok=True)
+    (root / ".gitmodules").write_text('[submodule "betaflight"]\n\tpath = betaflight\n')
+    return root
+
+
+def test_default_firmware_is_found_through_the_project_not_the_cwd(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    project = _project(tmp_path / "checkout")
+    hex_path = _image(project / "fw.hex", BuildInfo("Jan 01 2000", "00:00:00", "abcdef0"))
+    built = _manifest(project / "build" / "speedybeef7v3", hex_path)
+    subdirectory = project / "docs" / "notes"
+    subdirectory.mkdir(parents=True)
+    monkeypatch.chdir(subdirectory)
+    monkeypatch.delenv(PROJECT_ENV, raising=False)
+    board = BoardInfo("S7X2", 0, 0, "STM32F7X2", "SPEEDYBEEF7V3", "SPBE", 0)
+    firmware = resolve_firmware(None, None, board)
+    assert firmware.manifest == Manifest.load(built)
+    assert firmware.path.resolve() == hex_path
+
+
+def test_wftool_flash_from_a_subdirectory_flashes_the_projects_build(
+    virtual_fc: VirtualFC,
+    standin_dfu_util: StandinDfuUtil,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    monkeypatch.setattr(fc_commands, "find_board", lambda port, present=True: virtual_fc)
+    with MspClient.open(virtual_fc.url) as msp:
+        fc = msp.identify()
+    project = _project(tmp_path / "checkout")
+    hex_path = _image(project / "fw.hex", fc.build, "STM32F7X2")
+    _manifest(
+        project / "build" / "sitl",
+        hex_path,
+        board=fc.board.board_name,
+        mcu=fc.board.target_name,
+        git_revision=fc.build.git_revision + "f2",
+    )
+    subdirectory = project / "scripts"
+    subdirectory.mkdir()
+    monkeypatch.chdir(subdirectory)
+    monkeypatch.delenv(PROJECT_ENV, raising=False)
+    with pytest.raises(SystemExit) as exit_info:
+        main(["flash", "--backup-dir", str(tmp_path / "b")])
+    out, err = capsys.readouterr()
+    assert exit_info.value.code == 0, err
+    assert out.splitlines()[0] == "flashed fw.hex; erased sectors 0, 2"

@@ -16,15 +16,15 @@ from pathlib import Path
 import pytest
 
 from tests.conftest import run_cli
-from wftool.cli.stream import SITL_MAX_FC_DROPS_PCT, SITL_MAX_SPREAD_MS
 from wftool.sitl.session import Motion, VirtualFcSession
+from wftool.verify.criteria import VIRTUAL_FC
 from wftool.verify.live import LiveOptions, run_live
 from wftool.verify.monitor import StreamMonitor
 
 pytestmark = pytest.mark.slow
 
-SPREAD = str(SITL_MAX_SPREAD_MS)
-DROPS = str(SITL_MAX_FC_DROPS_PCT)
+SPREAD = str(VIRTUAL_FC.max_spread_ms)
+DROPS = str(VIRTUAL_FC.max_drops_pct)
 
 
 @pytest.fixture

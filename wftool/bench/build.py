@@ -51,7 +51,7 @@ def bench_build(
     on a shared machine the minimum is the figure least disturbed by other work.
     """
     options = dataclasses.replace(options, ccache=False)
-    prepared = builder.prepare(project, target_name, options, console=None)
+    prepared = builder.prepare(project, target_name, options)
     raw_variables = {
         name: value
         for name, value in prepared.command.variables.items()

@@ -1,7 +1,7 @@
 """The stream on the virtual FC: how fast it holds, what verify costs, how soon a frame is out.
 
-For each `fsp_rate_hz` the patched SITL is started fresh with FSP configured and the real
-verify loop (`run_live`, the monitor, the dashboard rendered four times a second into a
+For each `fsp_rate_hz` the patched SITL is started fresh with FSP configured and a real
+verify run (`VerifySession`, with the dashboard rendered four times a second into a
 discarded console) runs for the given time. Figures: frames/s, transport loss, FC-side
 drops and rejections per rate; the CPU share of this process at the first rate (the SITL is
 another process); and the decode latency from a read returning to its frames delivered.
@@ -20,10 +20,9 @@ from rich.console import Console
 
 from wftool.fsp import StatePacket
 from wftool.sitl.session import VirtualFcSession
-from wftool.verify.criteria import Criteria, judge
 from wftool.verify.dashboard import render
-from wftool.verify.live import LiveOptions, run_live
-from wftool.verify.monitor import StreamMonitor, StreamSummary
+from wftool.verify.monitor import StreamSummary
+from wftool.verify.session import VerifySession, criteria_for
 
 
 @dataclass(frozen=True)
@@ -55,20 +54,6 @@ class StreamBenchResult:
         return max(held) if held else None
 
 
-class _TimedMonitor(StreamMonitor):
-    """A monitor that also notes how long each read took to become frames."""
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        self.latencies: list[float] = []
-
-    def feed(self, data: bytes, t: float) -> list[StatePacket]:
-        packets = super().feed(data, t)
-        if packets:
-            self.latencies.append(time.monotonic() - t)
-        return packets
-
-
 def _quantile(values: Sequence[float], q: float) -> float:
     ordered = sorted(values)
     return ordered[round(q * (len(ordered) - 1))] if ordered else float("nan")
@@ -79,18 +64,26 @@ def run_stream_bench(binary: Path, rates: Sequence[int], seconds: float) -> Stre
     cpu_percent = float("nan")
     latency = (float("nan"), float("nan"))
     screen = Console(file=io.StringIO(), width=100)
-    criteria = Criteria()
     with tempfile.TemporaryDirectory(prefix="wftool-bench-") as scratch:
         for index, rate in enumerate(rates):
             with VirtualFcSession(binary, Path(scratch) / f"rate-{rate}", rate_hz=rate) as fc:
-                monitor = _TimedMonitor(fc.fsp_url)
+                session = VerifySession(
+                    fc.fsp_url, duration_s=seconds, criteria=criteria_for(virtual_fc=True)
+                )
+                latencies: list[float] = []
 
-                def draw(summary: StreamSummary, monitor: StreamMonitor = monitor) -> None:
-                    screen.print(render(summary, monitor.latest, judge(summary, criteria)))
+                def draw(summary: StreamSummary, session: VerifySession = session) -> None:
+                    result = session.result(summary)
+                    screen.print(render(result.summary, result.latest, result.verdict))
                     screen.file = io.StringIO()  # keep memory flat
 
+                def timed(
+                    _packets: Sequence[StatePacket], t: float, into: list[float] = latencies
+                ) -> None:
+                    into.append(time.monotonic() - t)  # a read returned at t: its frames are out
+
                 cpu_start, wall_start = time.process_time(), time.monotonic()
-                summary = run_live(LiveOptions(fc.fsp_url, 2_000_000, seconds), monitor, None, draw)
+                summary = session.run(on_refresh=draw, on_packets=timed).summary
                 cpu = time.process_time() - cpu_start
                 wall = time.monotonic() - wall_start
             figures.append(
@@ -104,8 +97,5 @@ def run_stream_bench(binary: Path, rates: Sequence[int], seconds: float) -> Stre
             )
             if index == 0:
                 cpu_percent = 100.0 * cpu / wall
-                latency = (
-                    1e3 * _quantile(monitor.latencies, 0.5),
-                    1e3 * _quantile(monitor.latencies, 0.99),
-                )
+                latency = (1e3 * _quantile(latencies, 0.5), 1e3 * _quantile(latencies, 0.99))
     return StreamBenchResult(seconds, tuple(figures), cpu_percent, latency)

@@ -12,7 +12,7 @@ import click
 from rich.console import Console
 
 from wftool import __version__
-from wftool.cli import bench, build, fc, stream
+from wftool.cli import bench, build, fc, sitl, verify
 from wftool.errors import EXIT_USAGE, WftoolError
 
 err_console = Console(stderr=True, highlight=False)
@@ -24,7 +24,7 @@ def cli() -> None:
     """Build, flash, configure and verify the Weitflug research firmware."""
 
 
-for _module in (build, fc, stream, bench):
+for _module in (build, fc, verify, sitl, bench):
     for _command in _module.COMMANDS:
         cli.add_command(_command)
 

@@ -127,7 +127,7 @@ def bench_stream(rates: str, seconds: float, binary: Path | None, project_dir: P
     """On the virtual FC: the highest fsp_rate_hz that streams without loss, verify's CPU
     share at the default rate, and the decode latency (read to frames)."""
     from wftool.bench.stream import run_stream_bench
-    from wftool.cli.stream import build_sitl
+    from wftool.cli.sitl import build_sitl
 
     try:
         values = [int(value) for value in rates.split(",")]

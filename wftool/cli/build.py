@@ -12,6 +12,7 @@ import click
 from rich.console import Console
 from rich.table import Table
 
+from wftool.cli.progress import BYTES, UNITS, ProgressBars
 from wftool.errors import BuildError
 from wftool.firmware import (
     BuildFlags,
@@ -43,9 +44,22 @@ def project_from(project_dir: Path | None) -> Project:
     return find_project(project_dir)
 
 
+def note(message: str) -> None:
+    """The API's news (`Log`) on stderr; warnings in yellow."""
+    err.print(message, style="yellow" if message.startswith("warning:") else None, soft_wrap=True)
+
+
 def locked(project: Project) -> AbstractContextManager[None]:
     """The checkout's lock, saying so when another wftool run holds it."""
-    return exclusive(project, lambda: err.print("waiting for another wftool run"))
+    return exclusive(project, lambda: note("waiting for another wftool run"))
+
+
+def build_with_progress(
+    project: Project, target: str, options: BuildOptions | None = None
+) -> BuildResult:
+    """`build()` with make's progress drawn on stderr."""
+    with ProgressBars(err, UNITS) as bars:
+        return build(project, target, options, progress=bars, log=note)
 
 
 def build_options(function: Callable[..., Any]) -> Callable[..., Any]:
@@ -129,30 +143,27 @@ def build_command(
     Fetches the pinned Betaflight tree if needed, applies patches/, compiles, and writes
     build/<target>/ with the firmware and manifest.json.
     """
-    result = build(
-        project_from(project_dir),
-        target,
-        options_from(clean=clean, rebuild=rebuild, **options),
-        err,
+    result = build_with_progress(
+        project_from(project_dir), target, options_from(clean=clean, rebuild=rebuild, **options)
     )
     print_summary(result)
 
 
 def print_summary(result: BuildResult) -> None:
     """The table at the end of a build: target, size, flash %, RAM %, path."""
-    data = result.manifest
-    usage = data.get("usage") or {}
+    manifest = result.manifest
+    usage = manifest.usage
     table = Table(box=None, pad_edge=False)
     for column in ("target", "size", "flash", "RAM"):
         table.add_column(column, justify="left" if column == "target" else "right")
     table.add_column("firmware", overflow="fold")
-    artifacts = data["artifacts"]
-    sized = result.out_dir / artifacts.get("bin", artifacts.get("exe", artifacts["elf"]))
+    sized = manifest.artifact("bin") or manifest.artifact("exe") or manifest.artifact("elf")
+    assert sized is not None
     table.add_row(
-        data["target"],
+        manifest.target,
         f"{sized.stat().st_size / 1024:.1f} KiB",
-        _percent(usage.get("flash_bytes"), usage.get("flash_total")),
-        _percent(usage.get("ram_bytes"), usage.get("ram_total")),
+        _percent(usage.flash_bytes, usage.flash_total) if usage else "-",
+        _percent(usage.ram_bytes, usage.ram_total) if usage else "-",
         _shown_path(result.firmware),
     )
     state = (
@@ -160,7 +171,7 @@ def print_summary(result: BuildResult) -> None:
         if result.up_to_date
         else (f"built in {result.seconds:.1f} s, {result.compiled} units compiled")
     )
-    out.print(f"{data['target']}: {state} (git revision {data['git_revision']})")
+    out.print(f"{manifest.target}: {state} (git revision {manifest.git_revision})")
     out.print(table)
 
 
@@ -278,7 +289,8 @@ def toolchain_group() -> None:
 def toolchain_install(sha256: str | None, url: str | None, project_dir: Path | None) -> None:
     """Download, verify and unpack the toolchain release the pinned Betaflight names."""
     project = None if url else project_from(project_dir)
-    directory = builder.install_toolchain(project, url=url, sha256=sha256, console=err)
+    with ProgressBars(err, BYTES) as bars:
+        directory = builder.install_toolchain(project, url=url, sha256=sha256, progress=bars)
     out.print(f"toolchain ready: {directory}")
 
 

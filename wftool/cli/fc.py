@@ -6,10 +6,10 @@ from pathlib import Path
 
 import click
 from rich.console import Console
-from rich.progress import BarColumn, Progress, TaskID, TextColumn
 from rich.table import Table
 
 from wftool import doctor as doctor_checks
+from wftool.cli.progress import PERCENT, ProgressBars
 from wftool.errors import ProtocolError, WftoolError
 from wftool.fc.backup import DEFAULT_BACKUP_DIR
 from wftool.fc.board import Board, SerialBoard
@@ -90,13 +90,24 @@ def config() -> None:
     """Apply configuration files."""
 
 
-@config.command("apply")
-@click.argument("file", type=click.Path(exists=True, dir_okay=False, path_type=Path))
-@port_option
-@backup_dir_option
-def config_apply(file: Path, port: str | None, backup_dir: Path) -> None:
-    """Apply FILE (a Betaflight CLI script such as `diff` output, or TOML name = value)."""
-    _apply(port, plan_from_file(file), backup_dir)
+def _apply_file_command(name: str, help_text: str) -> click.Command:
+    """`config apply` and `restore`: one implementation under two names."""
+
+    @click.command(name, help=help_text)
+    @click.argument("file", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+    @port_option
+    @backup_dir_option
+    def apply_file(file: Path, port: str | None, backup_dir: Path) -> None:
+        _apply(port, plan_from_file(file), backup_dir)
+
+    return apply_file
+
+
+config.add_command(
+    _apply_file_command(
+        "apply", "Apply FILE (a Betaflight CLI script such as `diff` output, or TOML name = value)."
+    )
+)
 
 
 @click.group()
@@ -133,13 +144,9 @@ def backup(port: str | None, backup_dir: Path) -> None:
     console.print(path)
 
 
-@click.command()
-@click.argument("file", type=click.Path(exists=True, dir_okay=False, path_type=Path))
-@port_option
-@backup_dir_option
-def restore(file: Path, port: str | None, backup_dir: Path) -> None:
-    """Restore a backup FILE through the same safe path as `set` (backs up first)."""
-    _apply(port, plan_from_file(file), backup_dir)
+restore = _apply_file_command(
+    "restore", "Restore a backup FILE through the same safe path as `set` (backs up first)."
+)
 
 
 @click.command()
@@ -156,32 +163,6 @@ def info(port: str | None) -> None:
     )
 
 
-class DfuProgress:
-    """A rich bar per dfu-util phase, shown from the first progress report on."""
-
-    def __init__(self) -> None:
-        self._bars: Progress | None = None
-        self._tasks: dict[str, TaskID] = {}
-
-    def update(self, phase: str, percent: int, _done: int) -> None:
-        if self._bars is None:
-            columns = (
-                TextColumn("{task.description}"),
-                BarColumn(),
-                TextColumn("{task.percentage:>3.0f}%"),
-            )
-            self._bars = Progress(*columns, console=status)
-            self._bars.start()
-        task = self._tasks.get(phase)
-        if task is None or self._bars.tasks[task].percentage > percent:  # a new region
-            task = self._tasks[phase] = self._bars.add_task(phase, total=100)
-        self._bars.update(task, completed=percent)
-
-    def close(self) -> None:
-        if self._bars is not None:
-            self._bars.stop()
-
-
 @click.command()
 @click.argument(
     "firmware", required=False, type=click.Path(exists=True, dir_okay=False, path_type=Path)
@@ -191,9 +172,8 @@ class DfuProgress:
 @click.option(
     "--build-dir",
     type=click.Path(file_okay=False, path_type=Path),
-    default=flasher.DEFAULT_BUILD_DIR,
-    show_default=True,
-    help="Where `wftool build` leaves <target>/manifest.json.",
+    help="Where `wftool build` left <target>/manifest.json [the build/ of the wftool "
+    "checkout around the current directory].",
 )
 @click.option("--force", is_flag=True, help="Flash even if board or MCU do not match.")
 @click.option("--full-erase", is_flag=True, help="Mass-erase first: wipes the configuration.")
@@ -210,7 +190,7 @@ def flash(
     firmware: Path | None,
     port: str | None,
     backup_dir: Path,
-    build_dir: Path,
+    build_dir: Path | None,
     force: bool,
     full_erase: bool,
     no_reboot: bool,
@@ -219,8 +199,7 @@ def flash(
 ) -> None:
     """Flash FIRMWARE (.hex, .bin or manifest.json; default: the last build for this FC)."""
     board = find_board(port, present=not no_reboot)
-    bars = DfuProgress()
-    try:
+    with ProgressBars(status, PERCENT, per_phase=True) as bars:
         report = flasher.flash_firmware(
             board,
             firmware,
@@ -231,11 +210,9 @@ def flash(
             no_reboot=no_reboot,
             restore=restore,
             dfu_timeout=dfu_timeout,
-            progress=bars.update,
+            progress=lambda phase, percent, _bytes: bars(phase, percent, 100),
             log=log,
         )
-    finally:
-        bars.close()
     erased = ", ".join(str(s) for s in sorted(report.erased))
     console.print(f"flashed {report.firmware.path.name}; erased sectors {erased}")
     if report.backup:

@@ -18,6 +18,7 @@ import serial
 
 from wftool.errors import MspError
 from wftool.fc.transport import open_port, port_errors
+from wftool.fsp.crc import DVB_S2_INIT, crc8
 
 
 class MspVersion(enum.IntEnum):
@@ -72,13 +73,9 @@ RECEIVER_FEATURES = (
 _JUMBO_SIZE = 255
 
 
-def crc8_dvb_s2(data: bytes, crc: int = 0) -> int:
-    """CRC-8/DVB-S2 (poly 0xD5), the MSP v2 checksum."""
-    for byte in data:
-        crc ^= byte
-        for _ in range(8):
-            crc = ((crc << 1) ^ 0xD5) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
-    return crc
+def crc8_dvb_s2(data: bytes) -> int:
+    """CRC-8/DVB-S2, the MSP v2 checksum: FSP's CRC-8 (poly 0xD5) from init 0x00."""
+    return crc8(data, DVB_S2_INIT)
 
 
 def _xor(data: bytes) -> int:

@@ -30,6 +30,7 @@ from wftool.fc.board import Board
 from wftool.fc.cli_session import CliSession, Setting
 from wftool.fc.msp import RECEIVER_FEATURES, MspClient
 from wftool.fc.transport import open_port
+from wftool.progress import Log, quiet
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -49,12 +50,6 @@ CONFIG_VERBS = frozenset(
 """What a `diff all`/`dump` script contains, minus what wftool does itself (batch, save)."""
 HANDLED_BY_WFTOOL = frozenset({"batch", "save"})
 """All-or-nothing and the final save are wftool's job; these script lines are skipped."""
-
-Log = Callable[[str], None]
-
-
-def quiet(_message: str) -> None:
-    """The default `Log`: say nothing."""
 
 
 @dataclass(frozen=True)

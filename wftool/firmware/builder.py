@@ -19,16 +19,14 @@ import time
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
 
-from rich.console import Console
-
-from wftool.errors import ToolchainError, UsageError
-from wftool.firmware import make, manifest, patches, toolchain, tree
-from wftool.firmware.manifest import BuildFlags
+from wftool.errors import UsageError
+from wftool.firmware import make, patches, toolchain, tree
+from wftool.firmware.manifest import FILE_NAME, BuildFlags, Manifest, file_sha256
 from wftool.firmware.project import Project, exclusive
 from wftool.firmware.targets import Target, resolve_target
 from wftool.firmware.toolchain import Toolchain
+from wftool.progress import Log, Progress, quiet
 
 _DEFINE = re.compile(r"^[A-Za-z_]\w*(=[\w.+-]*)?$")
 """--define NAME[=VALUE]; VALUE is kept shell-safe because make pastes it into command lines."""
@@ -55,8 +53,7 @@ class BuildResult:
     """What `build()` produced."""
 
     target: Target
-    manifest_path: Path
-    manifest: dict[str, Any]
+    manifest: Manifest
     up_to_date: bool
     """Nothing was compiled or copied: the outputs already matched the inputs."""
     compiled: int
@@ -64,15 +61,18 @@ class BuildResult:
     warnings: list[str]
 
     @property
+    def manifest_path(self) -> Path:
+        return self.manifest.path
+
+    @property
     def out_dir(self) -> Path:
         """build/<target>/."""
-        return self.manifest_path.parent
+        return self.manifest.out_dir
 
     @property
     def firmware(self) -> Path:
         """The file to flash (.hex) or to run (SITL)."""
-        artifacts = self.manifest["artifacts"]
-        return self.out_dir / artifacts.get("hex", artifacts.get("exe", artifacts["elf"]))
+        return self.manifest.firmware
 
 
 @dataclass(frozen=True)
@@ -92,37 +92,42 @@ def build(
     project: Project,
     target_name: str,
     options: BuildOptions | None = None,
-    console: Console | None = None,
+    *,
+    progress: Progress | None = None,
+    log: Log = quiet,
 ) -> BuildResult:
-    """Build TARGET_NAME; CONSOLE (stderr) gets the progress bar and warnings."""
-    on_wait = None if console is None else lambda: console.print("waiting for another wftool run")
-    with exclusive(project, on_wait):
-        return _build(project, target_name, options or BuildOptions(), console)
+    """Build TARGET_NAME. PROGRESS gets make's progress (`make.run`); LOG gets news: waiting
+    for another run's lock, toolchain warnings (also in `BuildResult.warnings`)."""
+    with exclusive(project, lambda: log("waiting for another wftool run")):
+        return _build(project, target_name, options or BuildOptions(), progress, log)
 
 
 def _build(
-    project: Project, target_name: str, options: BuildOptions, console: Console | None
+    project: Project,
+    target_name: str,
+    options: BuildOptions,
+    progress: Progress | None,
+    log: Log,
 ) -> BuildResult:
     started = time.monotonic()
-    prepared = prepare(project, target_name, options, console)
+    prepared = prepare(project, target_name, options, log)
     if options.rebuild:
         shutil.rmtree(prepared.object_dir, ignore_errors=True)
         make.write_hook(prepared.command.hook)
     _invalidate_stale_revision(prepared)
     out_dir = project.build_dir / prepared.target.name
-    manifest_path = out_dir / manifest.FILE_NAME
-    previous = manifest.read(manifest_path)
-    log = out_dir / "build.log"
+    manifest_path = out_dir / FILE_NAME
+    previous = Manifest.read(manifest_path)
+    build_log = out_dir / "build.log"
     run = None
     if _stamp(prepared).exists():  # objects of a finished build: find what is out of date
         plan = make.plan(prepared.command)
         values = plan.values
         inputs = _inputs_fingerprint(prepared, values)
-        same_inputs = previous is not None and previous.get("inputs_sha256") == inputs
-        if plan.up_to_date and same_inputs and _artifacts_intact(out_dir, previous):
+        same_inputs = previous is not None and previous.inputs_sha256 == inputs
+        if plan.up_to_date and same_inputs and _artifacts_intact(previous):
             return BuildResult(
                 target=prepared.target,
-                manifest_path=manifest_path,
                 manifest=previous,
                 up_to_date=True,
                 compiled=0,
@@ -130,34 +135,33 @@ def _build(
                 warnings=prepared.warnings,
             )
         if not plan.up_to_date:
-            run = make.run(prepared.command, log, console, planned=len(plan.units))
+            run = make.run(prepared.command, build_log, progress, planned=len(plan.units))
     else:  # from scratch: everything compiles, no dry run needed
-        run = make.run(prepared.command, log, console)
+        run = make.run(prepared.command, build_log, progress)
         values = run.values
         inputs = _inputs_fingerprint(prepared, values)
     elf = Path(values["elf"])
     usage = (run and run.usage) or _stored_usage(prepared, elf)
     if usage is None:  # an ELF linked outside wftool: relink once to learn its memory use
         elf.unlink(missing_ok=True)
-        usage = make.run(prepared.command, log, console).usage
+        usage = make.run(prepared.command, build_log, progress).usage
     _store_usage(prepared, elf, usage)
     _stamp(prepared).write_text(_revision_stamp(prepared))
-    data = _publish(prepared, values, inputs, usage, out_dir, previous)
-    data["build_seconds"] = round(time.monotonic() - started, 2)
-    manifest.write(manifest_path, data)
+    published = _publish(prepared, values, inputs, usage, manifest_path, previous)
+    published = dataclasses.replace(published, build_seconds=round(time.monotonic() - started, 2))
+    published.write()
     return BuildResult(
         target=prepared.target,
-        manifest_path=manifest_path,
-        manifest=data,
+        manifest=published,
         up_to_date=False,
         compiled=run.compiled if run else 0,
-        seconds=data["build_seconds"],
+        seconds=published.build_seconds or 0.0,
         warnings=prepared.warnings,
     )
 
 
 def prepare(
-    project: Project, target_name: str, options: BuildOptions, console: Console | None
+    project: Project, target_name: str, options: BuildOptions, log: Log = quiet
 ) -> Prepared:
     """Everything before make: tree, patches, toolchain, make variables."""
     target = resolve_target(project, target_name)
@@ -175,8 +179,7 @@ def prepare(
             f"{compiler.gcc} is gcc {compiler.version}, the Betaflight tree asks for "
             f"{compiler.required}; building anyway (--strict-toolchain refuses)"
         )
-        if console is not None:
-            console.print(f"[yellow]warning:[/] {warnings[-1]}", soft_wrap=True)
+        log(f"warning: {warnings[-1]}")
     variables = {
         **target.make_vars,
         "CONFIG_DIR": str(project.config_dir),
@@ -223,13 +226,9 @@ def find_toolchain(project: Project, target: Target, options: BuildOptions) -> T
     """The host gcc for SITL; otherwise arm-none-eabi-gcc checked against the tree's version."""
     if target.is_sitl:
         return toolchain.host_toolchain()
-    tools_mk = (project.tree / "mk" / "tools.mk").read_text()
-    try:
-        installed = toolchain.sdk_release(tools_mk).directory_name
-    except ToolchainError:  # no ARM release for this host; PATH or --toolchain must do
-        installed = None
+    required, installed = toolchain.arm_requirement(project.tree)
     return toolchain.find_arm_toolchain(
-        toolchain.required_version(tools_mk),
+        required,
         explicit=options.toolchain_dir,
         strict=options.strict_toolchain,
         installed=installed,
@@ -241,7 +240,7 @@ def install_toolchain(
     *,
     url: str | None = None,
     sha256: str | None = None,
-    console: Console | None = None,
+    progress: Progress | None = None,
 ) -> Path:
     """Install the ARM toolchain the pinned tree names (fetching the tree if needed).
 
@@ -257,12 +256,12 @@ def install_toolchain(
         if not tree.is_checked_out(project):
             tree.fetch_tree(project, pin, resolve_target(project, "sitl"))
         release = toolchain.sdk_release(tree.read_at(project, pin, "mk/tools.mk"))
-    return toolchain.install(release, sha256=sha256, console=console)
+    return toolchain.install(release, sha256=sha256, progress=progress)
 
 
 def _board_config_sha256(target: Target) -> str:
     assert target.config_header is not None
-    return manifest.file_sha256(target.config_header)
+    return file_sha256(target.config_header)
 
 
 def _invalidate_stale_revision(prepared: Prepared) -> None:
@@ -281,7 +280,7 @@ def _stored_usage(prepared: Prepared, elf: Path) -> make.Usage | None:
     """The memory use recorded when ELF was linked, if ELF is still that file."""
     try:
         stored = json.loads((prepared.object_dir / ".wftool-usage.json").read_text())
-        if stored["elf_sha256"] == manifest.file_sha256(elf):
+        if stored["elf_sha256"] == file_sha256(elf):
             return make.Usage(**stored["usage"])
     except (OSError, ValueError, KeyError, TypeError):
         pass
@@ -291,7 +290,7 @@ def _stored_usage(prepared: Prepared, elf: Path) -> make.Usage | None:
 def _store_usage(prepared: Prepared, elf: Path, usage: make.Usage | None) -> None:
     """Remember the link's memory use: a later build from the same objects does not relink."""
     if usage is not None:
-        record = {"elf_sha256": manifest.file_sha256(elf), "usage": dataclasses.asdict(usage)}
+        record = {"elf_sha256": file_sha256(elf), "usage": dataclasses.asdict(usage)}
         (prepared.object_dir / ".wftool-usage.json").write_text(json.dumps(record))
 
 
@@ -317,12 +316,13 @@ def _inputs_fingerprint(prepared: Prepared, values: dict[str, str]) -> str:
     return hashlib.sha256(json.dumps(inputs, sort_keys=True).encode()).hexdigest()
 
 
-def _artifacts_intact(out_dir: Path, data: dict[str, Any]) -> bool:
-    """Whether every file the manifest lists is in OUT_DIR with the recorded hash."""
-    hashes = data.get("artifact_sha256", {})
+def _artifacts_intact(previous: Manifest) -> bool:
+    """Whether every file the manifest lists is beside it with the recorded hash."""
+    hashes = previous.artifact_sha256
     return bool(hashes) and all(
-        (out_dir / data["artifacts"][kind]).is_file()
-        and manifest.file_sha256(out_dir / data["artifacts"][kind]) == digest
+        (path := previous.artifact(kind)) is not None
+        and path.is_file()
+        and file_sha256(path) == digest
         for kind, digest in hashes.items()
     )
 
@@ -332,12 +332,13 @@ def _publish(
     values: dict[str, str],
     inputs: str,
     usage: make.Usage | None,
-    out_dir: Path,
-    previous: dict[str, Any] | None,
-) -> dict[str, Any]:
-    """Copy the outputs into OUT_DIR and return the manifest describing them."""
+    manifest_path: Path,
+    previous: Manifest | None,
+) -> Manifest:
+    """Copy the outputs beside MANIFEST_PATH and return the manifest describing them."""
+    out_dir = manifest_path.parent
     out_dir.mkdir(parents=True, exist_ok=True)
-    for old in (previous or {}).get("artifacts", {}).values():
+    for old in (previous.artifacts if previous else {}).values():
         (out_dir / old).unlink(missing_ok=True)
     kinds = ("exe", "elf") if values.get("output") == "exe" else ("hex", "bin", "elf")
     artifacts, hashes = {}, {}
@@ -345,34 +346,32 @@ def _publish(
         source = Path(values[kind])
         shutil.copy2(source, out_dir / source.name)
         artifacts[kind] = source.name
-        hashes[kind] = manifest.file_sha256(out_dir / source.name)
+        hashes[kind] = file_sha256(out_dir / source.name)
     target, compiler = prepared.target, prepared.toolchain
     series = patches.series(prepared.project)
-    revision = values.get("revision", "")
-    return {
-        "schema": manifest.SCHEMA,
-        "target": target.name,
-        "board": target.board,
-        "mcu": target.mcu,
-        "betaflight_commit": tree.pinned_commit(prepared.project),
-        "betaflight_head": tree.head(prepared.project),
-        "betaflight_version": values.get("version"),
-        "git_revision": revision,
-        "git_revision_msp": revision[: manifest.MSP_REVISION_LENGTH],
-        "patch_series_sha256": patches.series_sha256(series),
-        "patches": [{"name": patch.name, "sha256": patch.sha256} for patch in series],
-        "board_config_sha256": None if target.is_sitl else _board_config_sha256(target),
-        "toolchain": {
+    return Manifest(
+        path=manifest_path,
+        target=target.name,
+        board=target.board,
+        mcu=target.mcu,
+        betaflight_commit=tree.pinned_commit(prepared.project),
+        betaflight_head=tree.head(prepared.project),
+        betaflight_version=values.get("version"),
+        git_revision=values.get("revision", ""),
+        patch_series_sha256=patches.series_sha256(series),
+        patches=[{"name": patch.name, "sha256": patch.sha256} for patch in series],
+        board_config_sha256=None if target.is_sitl else _board_config_sha256(target),
+        toolchain={
             "path": str(compiler.gcc),
             "version": compiler.version,
             "required": compiler.required,
             "strict": compiler.strict,
         },
-        "flags": prepared.flags.to_json(),
-        "usage": None if usage is None else dataclasses.asdict(usage),
-        "build_seconds": None,
-        "built_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        "artifacts": artifacts,
-        "artifact_sha256": hashes,
-        "inputs_sha256": inputs,
-    }
+        flags=prepared.flags,
+        usage=usage,
+        build_seconds=None,
+        built_at=datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        artifacts=artifacts,
+        artifact_sha256=hashes,
+        inputs_sha256=inputs,
+    )

@@ -1,4 +1,4 @@
-"""Driving Betaflight's make: one make process, a progress bar, a full log, a short error.
+"""Driving Betaflight's make: one make process, progress reports, a full log, a short error.
 
 Betaflight's default goal recurses (fwo -> hex -> file), parsing its Makefile three times. wftool
 instead appends a small makefile of its own (`make -f Makefile -f wftool.mk`) whose goal asks
@@ -6,7 +6,7 @@ for the firmware files directly, and which reports the values the manifest needs
 embedded git revision, the output paths, the flash size) as make computes them.
 
 Rebuilding in an object directory that already holds a build, a dry run (`make -n`) first
-lists the units that are out of date: the progress bar's total, and when it lists nothing the
+lists the units that are out of date: the progress total, and when it lists nothing the
 build is up to date and make is not run at all. A build from scratch skips the dry run (every
 unit compiles; the hook reports how many), so it costs no more than plain make.
 """
@@ -21,10 +21,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
 from wftool.errors import BuildError
+from wftool.progress import Progress, no_progress
 
 HOOK_MAKEFILE = """\
 # Written by wftool and read after Betaflight's Makefile (make -f Makefile -f wftool.mk).
@@ -150,32 +148,24 @@ def plan(command: MakeCommand) -> MakePlan:
 
 
 def run(
-    command: MakeCommand, log: Path, console: Console | None, planned: int | None = None
+    command: MakeCommand, log: Path, progress: Progress | None = None, planned: int | None = None
 ) -> MakeRun:
-    """Run make with a progress bar, logging everything.
+    """Run make, logging everything, reporting (phase, units compiled, total) to PROGRESS.
 
-    The bar counts units compiled out of PLANNED (from a dry run), or else out of all the
-    target's units. On failure raises BuildError with the first compiler error (file:line)
-    and the log path.
+    The phases are compile, link, then done or failed. The total is PLANNED (from a dry
+    run), or else all the target's units once make reports them. On failure raises
+    BuildError with the first compiler error (file:line) and the log path.
     """
+    report = progress or no_progress
     log.parent.mkdir(parents=True, exist_ok=True)
     started = time.monotonic()
     compiled = 0
+    total = planned or None
+    phase = "compile"
     output: list[str] = []
-    with (
-        log.open("w") as sink,
-        Progress(
-            TextColumn("{task.description}"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TimeElapsedColumn(),
-            console=console,
-            disable=console is None,
-            transient=False,
-        ) as progress,
-    ):
+    with log.open("w") as sink:
         sink.write("$ " + " ".join(command.argv()) + "\n")
-        task = progress.add_task("compile", total=planned or None)
+        report(phase, compiled, total)
         try:
             proc = subprocess.Popen(
                 command.argv(),
@@ -194,14 +184,16 @@ def run(
                 sink.write(line)
                 output.append(line.rstrip("\n"))
                 if planned is None and line.startswith("wftool-var objects="):
-                    progress.update(task, total=int(line.split("=", 1)[1]))
+                    total = int(line.split("=", 1)[1])
                 elif _UNIT_RUN.match(line):
                     compiled += 1
-                    progress.update(task, completed=compiled)
                 elif _LINKING.match(line):
-                    progress.update(task, description="link")
+                    phase = "link"
+                else:
+                    continue
+                report(phase, compiled, total)
         returncode = proc.returncode
-        progress.update(task, description="done" if returncode == 0 else "failed")
+        report("done" if returncode == 0 else "failed", compiled, total)
     if returncode != 0:
         raise BuildError(
             f"{first_error(output, command.tree)} (make exited {returncode}; log: {log})"

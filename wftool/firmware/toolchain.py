@@ -20,17 +20,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import requests
-from rich.console import Console
-from rich.progress import (
-    BarColumn,
-    DownloadColumn,
-    Progress,
-    TextColumn,
-    TimeRemainingColumn,
-    TransferSpeedColumn,
-)
 
 from wftool.errors import ToolchainError
+from wftool.progress import Progress, no_progress
 
 TOOLCHAIN_ENV = "WFTOOL_TOOLCHAIN"
 """A toolchain directory (holding bin/arm-none-eabi-gcc) to use instead of searching."""
@@ -62,6 +54,8 @@ _SDK_BLOCK = re.compile(
     r"(?:\s*DL_CHECKSUM\s*:?=\s*(?P<md5>[0-9a-fA-F]{32}))?"
 )
 _ARCHIVE_SUFFIXES = (".tar.xz", ".tar.bz2", ".tar.gz", ".zip")
+_RELEASE_VERSION = re.compile(r"^arm-gnu-toolchain-(\d+)\.(\d+)\.rel(\d+)-")
+"""ARM's release X.Y.relN ships gcc X.Y.N."""
 
 
 @dataclass(frozen=True)
@@ -132,6 +126,29 @@ def sdk_release(tools_mk: str, system: str | None = None, machine: str | None = 
     raise ToolchainError(f"the pinned Betaflight tree names no ARM toolchain for {host}")
 
 
+def arm_requirement(tree: Path | None) -> tuple[str, str | None]:
+    """The gcc version a build of the pinned Betaflight requires, and the directory of the
+    release `install` puts in the cache for this host (None if it names none).
+
+    Read from the tree's mk/tools.mk when TREE is checked out; else from the release wftool
+    pins the SHA-256 of (the one mk/tools.mk names), so `doctor` can tell before a fetch.
+    """
+    tools_mk = tree / "mk" / "tools.mk" if tree is not None else None
+    if tools_mk is not None and tools_mk.is_file():
+        text = tools_mk.read_text()
+        try:
+            installed: str | None = sdk_release(text).directory_name
+        except ToolchainError:  # no ARM release for this host; PATH or --toolchain must do
+            installed = None
+        return required_version(text), installed
+    pinned = [SdkRelease(name, None).directory_name for name in PINNED_SHA256]
+    versions = {m.expand(r"\1.\2.\3") for n in pinned if (m := _RELEASE_VERSION.match(n))}
+    if len(versions) != 1:
+        raise ToolchainError(f"the pinned ARM releases name {len(versions)} gcc versions")
+    cached = (name for name in pinned if (cache_dir() / name / "bin" / ARM_GCC).is_file())
+    return versions.pop(), next(cached, None)
+
+
 def gcc_version(gcc: Path, flag: str = "-dumpversion") -> str:
     """The compiler's version; `-dumpversion` is what Betaflight compares with the required one."""
     try:
@@ -198,9 +215,11 @@ def install(
     *,
     sha256: str | None = None,
     cache: Path | None = None,
-    console: Console | None = None,
+    progress: Progress | None = None,
 ) -> Path:
     """Download, verify and unpack RELEASE into the cache; return the toolchain directory.
+
+    PROGRESS gets ("download <file>", bytes so far, total bytes or None).
 
     The download resumes from a previous `.part` (HTTP Range). The archive must match SHA256
     (default: the pinned value for its file name; none pinned and none given is refused) and
@@ -220,7 +239,7 @@ def install(
     downloads = cache / ".downloads"
     downloads.mkdir(parents=True, exist_ok=True)
     part = downloads / f"{release.file_name}.part"
-    _download(release.url, part, console)
+    _download(release.url, part, progress or no_progress)
     digests = _digests(part)
     mismatch = None
     if digests["sha256"] != expected:
@@ -242,7 +261,7 @@ def install(
     return destination
 
 
-def _download(url: str, part: Path, console: Console | None) -> None:
+def _download(url: str, part: Path, progress: Progress) -> None:
     """Fetch URL into PART, continuing where an interrupted download stopped."""
     offset = part.stat().st_size if part.exists() else 0
     headers = {"Range": f"bytes={offset}-"} if offset else {}
@@ -255,26 +274,15 @@ def _download(url: str, part: Path, console: Console | None) -> None:
             if not resumed:
                 offset = 0
             length = int(response.headers.get("Content-Length") or 0)
-            with (
-                Progress(
-                    TextColumn("{task.description}"),
-                    BarColumn(),
-                    DownloadColumn(),
-                    TransferSpeedColumn(),
-                    TimeRemainingColumn(),
-                    console=console,
-                    disable=console is None,
-                ) as progress,
-                part.open("ab" if resumed else "wb") as sink,
-            ):
-                task = progress.add_task(
-                    f"download {part.name.removesuffix('.part')}",
-                    total=offset + length if length else None,
-                    completed=offset,
-                )
+            phase = f"download {part.name.removesuffix('.part')}"
+            total = offset + length if length else None
+            done = offset
+            progress(phase, done, total)
+            with part.open("ab" if resumed else "wb") as sink:
                 for chunk in response.iter_content(chunk_size=1 << 16):
                     sink.write(chunk)
-                    progress.advance(task, len(chunk))
+                    done += len(chunk)
+                    progress(phase, done, total)
     except requests.RequestException as exc:
         raise ToolchainError(
             f"download of {url} failed ({exc}); run the command again to resume"

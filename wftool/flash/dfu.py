@@ -14,12 +14,12 @@ from __future__ import annotations
 import re
 import subprocess
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 from wftool.errors import FlashError
 from wftool.fc.transport import STM32_DFU, UsbId
+from wftool.flash.backend import Device, FlashBackend, Progress
 from wftool.flash.image import FlashLayout
 
 DFU_UTIL = "dfu-util"
@@ -34,9 +34,6 @@ _FOUND = re.compile(
     r'name="([^"]*)", serial="([^"]*)"'
 )
 _PROGRESS = re.compile(r"^(Erase|Download)\s*\[[= ]*\]\s*(\d+)%\s+(\d+) bytes")
-
-Progress = Callable[[str, int, int], None]
-"""Called with the phase ("Erase" or "Download"), percent done and bytes done."""
 
 
 @dataclass(frozen=True)
@@ -162,3 +159,28 @@ def download(
     ]
     reason = "; ".join(errors[-2:]) or (lines[-1] if lines else "no output")
     raise FlashError(f"dfu-util failed writing at 0x{address:08x} (exit {status}): {reason}")
+
+
+class DfuBackend(FlashBackend):
+    """dfu-util and the STM32 ROM bootloader (DfuSe), over `wait_for_device` and `download`."""
+
+    def wait_for_device(self, timeout: float) -> DfuDevice:
+        return wait_for_device(timeout)
+
+    def write(
+        self,
+        device: Device,
+        address: int,
+        image_file: Path,
+        *,
+        leave: bool,
+        mass_erase: bool = False,
+        progress: Progress | None = None,
+    ) -> str | None:
+        assert isinstance(device, DfuDevice)
+        result = download(
+            device, address, image_file, leave=leave, mass_erase=mass_erase, progress=progress
+        )
+        if result.status_error_after_leave:
+            return "dfu-util: get_status failed after leave, as usual (the board had already reset)"
+        return None

@@ -7,7 +7,6 @@ reports a build (date, time, git revision) that is in the image just written.
 
 from __future__ import annotations
 
-import json
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,15 +16,11 @@ from intelhex import IntelHex
 from wftool.errors import FlashError, UsageError, WftoolError
 from wftool.fc.board import Board
 from wftool.fc.msp import BoardInfo, BuildInfo, FcIdentity, MspClient, RebootMode
-from wftool.fc.params import (
-    ChangeReport,
-    Log,
-    apply_plan,
-    configuration_session,
-    plan_from_file,
-    quiet,
-)
-from wftool.flash import dfu
+from wftool.fc.params import ChangeReport, apply_plan, configuration_session, plan_from_file
+from wftool.firmware.manifest import FILE_NAME, Manifest
+from wftool.firmware.project import find_project
+from wftool.flash.backend import FlashBackend, Progress
+from wftool.flash.dfu import DfuBackend
 from wftool.flash.image import (
     MCU_FLASH,
     McuFlash,
@@ -34,38 +29,7 @@ from wftool.flash.image import (
     load_image,
     write_regions,
 )
-
-DEFAULT_BUILD_DIR = Path("build")
-
-
-@dataclass(frozen=True)
-class Manifest:
-    """`build/<target>/manifest.json`, written by `wftool build`."""
-
-    path: Path
-    target: str
-    board: str
-    mcu: str
-    git_revision: str
-    hex: Path | None
-    bin: Path | None
-
-    @classmethod
-    def load(cls, path: Path) -> Manifest:
-        try:
-            data = json.loads(path.read_text())
-            artifacts = data.get("artifacts", {})
-            return cls(
-                path=path,
-                target=data["target"],
-                board=data["board"],
-                mcu=data["mcu"],
-                git_revision=data["git_revision"],
-                hex=path.parent / artifacts["hex"] if artifacts.get("hex") else None,
-                bin=path.parent / artifacts["bin"] if artifacts.get("bin") else None,
-            )
-        except (OSError, ValueError, KeyError, TypeError) as exc:
-            raise UsageError(f"bad build manifest {path}: {exc!r}") from exc
+from wftool.progress import Log, quiet
 
 
 @dataclass
@@ -117,7 +81,7 @@ class Firmware:
 def find_manifest(build_dir: Path, board: BoardInfo) -> Manifest | None:
     """The newest build output for this FC: same board name, or same MCU for boards without."""
     manifests = sorted(
-        (Manifest.load(p) for p in build_dir.glob("*/manifest.json")),
+        (Manifest.load(p) for p in build_dir.glob(f"*/{FILE_NAME}")),
         key=lambda m: m.path.stat().st_mtime,
         reverse=True,
     )
@@ -131,8 +95,11 @@ def find_manifest(build_dir: Path, board: BoardInfo) -> Manifest | None:
     return None
 
 
-def resolve_firmware(path: Path | None, build_dir: Path, board: BoardInfo | None) -> Firmware:
-    """FIRMWARE as given (manifest .json, .hex, .bin), or the last build for this board."""
+def resolve_firmware(
+    path: Path | None, build_dir: Path | None, board: BoardInfo | None
+) -> Firmware:
+    """FIRMWARE as given (manifest .json, .hex, .bin), or the last build for this board in
+    BUILD_DIR (default: the build/ of the wftool project around the current directory)."""
     manifest = None
     if path is None:
         if board is None:
@@ -140,6 +107,8 @@ def resolve_firmware(path: Path | None, build_dir: Path, board: BoardInfo | None
                 "name the FIRMWARE to flash: without the FC's answer (--no-reboot) "
                 "wftool cannot pick its build"
             )
+        if build_dir is None:
+            build_dir = find_project().build_dir
         manifest = find_manifest(build_dir, board)
         if manifest is None:
             raise UsageError(
@@ -171,17 +140,20 @@ def flash_firmware(
     firmware_path: Path | None,
     *,
     backup_dir: Path,
-    build_dir: Path = DEFAULT_BUILD_DIR,
+    build_dir: Path | None = None,
     force: bool = False,
     full_erase: bool = False,
     no_reboot: bool = False,
     restore: bool = False,
     dfu_timeout: float = 30.0,
     boot_timeout: float = 30.0,
-    progress: dfu.Progress | None = None,
+    progress: Progress | None = None,
     log: Log = quiet,
+    backend: FlashBackend | None = None,
 ) -> FlashReport:
-    """The whole `wftool flash` flow; see the module docstring."""
+    """The whole `wftool flash` flow; see the module docstring. BACKEND writes the flash
+    (default: dfu-util); PROGRESS gets its reports."""
+    backend = backend or DfuBackend()
     before = None
     if not no_reboot:
         with MspClient.open(board.url) as msp:
@@ -227,7 +199,7 @@ def flash_firmware(
 
     stage = "waiting for the DFU bootloader"
     try:
-        device = dfu.wait_for_device(dfu_timeout)
+        device = backend.wait_for_device(dfu_timeout)
         if device.layout and device.layout != mcu.layout and not force:
             raise FlashError(
                 f"the bootloader reports flash {device.name!r}, not the layout "
@@ -243,7 +215,7 @@ def flash_firmware(
                 )
                 region_file = Path(scratch) / f"region-{index}.bin"
                 region_file.write_bytes(region.data)
-                result = dfu.download(
+                remark = backend.write(
                     device,
                     region.address,
                     region_file,
@@ -251,8 +223,8 @@ def flash_firmware(
                     mass_erase=full_erase and index == 0,
                     progress=progress,
                 )
-        if result.status_error_after_leave:
-            log("dfu-util: get_status failed after leave, as usual (the board had already reset)")
+                if remark:
+                    log(remark)
         stage = "waiting for the new firmware to start"
         board.wait_back(boot_timeout)
         with MspClient.open(board.url) as msp:

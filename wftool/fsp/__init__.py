@@ -8,7 +8,7 @@ Contract: spec/fsp.md. Where things live:
 - `decoder`  — `StateDecoder`: bytes in, timed packets out; loss, drops, resets counted
 - `encoder`  — wire bytes for both directions; `CommandSender` for the uplink
 - `clock`    — u32 unwrapping and OBC clock alignment (`KalmanClockEstimator`)
-- `reader`   — `FspReader` over any pyserial URL
+- `reader`   — `FspPort` (bytes in, commands out) over any pyserial URL; `FspReader` decodes
 - `mavlink`  — messages from the tunnel variant (needs pymavlink)
 """
 
@@ -17,15 +17,17 @@ from wftool.fsp.decoder import CommandDecoder, StateDecoder, StreamStats
 from wftool.fsp.encoder import CommandSender, encode_command, encode_state
 from wftool.fsp.framing import Rejection
 from wftool.fsp.packets import CommandPacket, SensorFrame, StatePacket
-from wftool.fsp.reader import FspReader
+from wftool.fsp.reader import DEFAULT_BAUDRATE, FspPort, FspReader
 
 __all__ = [
+    "DEFAULT_BAUDRATE",
     "ClockEstimator",
     "ClockState",
     "CommandDecoder",
     "CommandPacket",
     "CommandSender",
     "FcClock",
+    "FspPort",
     "FspReader",
     "KalmanClockEstimator",
     "Rejection",

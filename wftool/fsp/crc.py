@@ -1,4 +1,7 @@
-"""CRC-8 of FSP (spec §1): polynomial 0xD5, init 0xFF, MSB-first, no final XOR.
+"""CRC-8 with polynomial 0xD5, MSB-first, no final XOR: FSP's (spec §1, init 0xFF) and MSP v2's.
+
+MSP v2's checksum is CRC-8/DVB-S2: the same polynomial from init 0x00, so both protocols use
+`crc8`, the one implementation (`wftool.fc.msp` passes `init=DVB_S2_INIT`).
 
 Table-driven. `crc8` is the plain byte-at-a-time form. `crc8_residues` checks many packets
 of one length at once, without a Python loop per byte: the CRC is linear, so the register
@@ -15,6 +18,9 @@ from functools import lru_cache
 
 POLY = 0xD5
 INIT = 0xFF
+"""FSP's initial value."""
+DVB_S2_INIT = 0x00
+"""CRC-8/DVB-S2's initial value (MSP v2)."""
 
 _BATCH_MIN = 6
 """Below this many packets the per-position fixed cost exceeds the plain loop."""
@@ -33,8 +39,9 @@ def _make_table(poly: int) -> bytes:
 TABLE = _make_table(POLY)
 
 
-def crc8(data: bytes | bytearray | memoryview, crc: int = INIT) -> int:
-    """CRC-8 of `data`, continuing from `crc`."""
+def crc8(data: bytes | bytearray | memoryview, init: int = INIT) -> int:
+    """CRC-8 of `data`, starting from `init` (or continuing from a previous result)."""
+    crc = init
     table = TABLE
     for byte in data:
         crc = table[crc ^ byte]

@@ -9,7 +9,7 @@ on the OBC clock.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 from wftool.fsp.clock import U32, ClockEstimator, ClockState, FcClock, KalmanClockEstimator
 from wftool.fsp.framing import COMMAND_VERSIONS, STATE_VERSIONS, Deframer, Rejection
@@ -49,6 +49,19 @@ class StreamStats:
         """Chunks that did not decode, all causes."""
         return sum(self.rejected.values())
 
+    def __add__(self, later: StreamStats) -> StreamStats:
+        """The totals of two streams (say, two connections), `later` after this one."""
+        summed = {
+            f.name: getattr(self, f.name) + getattr(later, f.name)
+            for f in fields(self)
+            if f.name not in ("rejected", "e1")
+        }
+        rejected = {
+            cause: self.rejected.get(cause, 0) + later.rejected.get(cause, 0) for cause in Rejection
+        }
+        e1 = later.e1 if later.e1 is not None else self.e1
+        return StreamStats(**summed, rejected=rejected, e1=e1)
+
 
 class StateDecoder:
     """Decodes the FC → OBC stream. One instance per port; not thread-safe."""
@@ -64,6 +77,11 @@ class StateDecoder:
     @property
     def clock_state(self) -> ClockState:
         return self.clock.state
+
+    @property
+    def last_packet(self) -> StatePacket | None:
+        """The newest packet decoded (None before the first)."""
+        return self._last
 
     def feed(self, data: bytes, arrival_time: float | None = None) -> list[StatePacket]:
         """Packets completed by `data`; `arrival_time` (OBC clock, s) enables clock alignment."""

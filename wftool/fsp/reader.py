@@ -8,6 +8,10 @@
 Any pyserial URL works (`socket://127.0.0.1:5762` for the virtual FC, `rfc2217://…`). Bytes
 are timestamped with the OBC clock when read, which feeds clock alignment. A port that
 cannot be opened or that vanishes raises `wftool.errors.PortError` and nothing else.
+
+`FspPort` is the port alone (bytes in, commands out), for a caller that decodes itself (the
+verify monitor keeps one `StateDecoder` per connection); `FspReader` is a port with its
+`StateDecoder`.
 """
 
 from __future__ import annotations
@@ -16,6 +20,7 @@ import select
 import time
 from collections.abc import Callable, Iterator, Sequence
 from types import TracebackType
+from typing import TypeVar
 
 import serial
 
@@ -26,29 +31,29 @@ from wftool.fsp.encoder import CommandSender
 from wftool.fsp.packets import SensorFrame, StatePacket
 
 DEFAULT_BAUDRATE = 2_000_000
+"""The FSP baud rate wftool assumes unless told otherwise (`verify`, the virtual FC)."""
 _READ_SIZE = 1 << 16
+_Port = TypeVar("_Port", bound="FspPort")
 
 
-class FspReader:
-    """Decoded state packets from a port, plus the command uplink on the same port."""
+class FspPort:
+    """An FSP port: the bytes that arrive, and the command uplink. No decoding."""
 
     def __init__(
         self,
         url: str,
         baudrate: int = DEFAULT_BAUDRATE,
         *,
-        decoder: StateDecoder | None = None,
         now: Callable[[], float] = time.monotonic,
     ) -> None:
         self.url = url
         self.baudrate = baudrate
-        self.decoder = decoder if decoder is not None else StateDecoder()
         self._now = now
         self._sender = CommandSender(now)
         self._port: serial.SerialBase | None = None
         self._fd: int | None = None
 
-    def open(self) -> FspReader:
+    def open(self: _Port) -> _Port:
         port = open_port(self.url, self.baudrate, timeout=0)  # reads never block: see read_bytes
         self._port = port
         try:
@@ -62,7 +67,7 @@ class FspReader:
             self._port.close()
             self._port = None
 
-    def __enter__(self) -> FspReader:
+    def __enter__(self: _Port) -> _Port:
         return self.open()
 
     def __exit__(
@@ -90,6 +95,27 @@ class FspReader:
             data = port.read(1)
             return data + port.read(port.in_waiting) if data else data
 
+    def send_command(self, rc: Sequence[int]) -> None:
+        """Send RC values (roll, pitch, yaw, throttle, aux3, aux4) to the FC."""
+        wire = self._sender.encode(rc)
+        with port_errors(self.url):
+            self.port.write(wire)
+
+
+class FspReader(FspPort):
+    """Decoded state packets from a port (an `FspPort` feeding its `StateDecoder`)."""
+
+    def __init__(
+        self,
+        url: str,
+        baudrate: int = DEFAULT_BAUDRATE,
+        *,
+        decoder: StateDecoder | None = None,
+        now: Callable[[], float] = time.monotonic,
+    ) -> None:
+        super().__init__(url, baudrate, now=now)
+        self.decoder = decoder if decoder is not None else StateDecoder()
+
     def read(self, timeout: float = 0.1) -> list[StatePacket]:
         """Packets completed by the bytes that arrive within `timeout` (maybe none)."""
         data = self.read_bytes(timeout)
@@ -104,9 +130,3 @@ class FspReader:
         """Decoded sensor frames in capture order, forever (until the port fails)."""
         for packet in self.packets():
             yield from packet.frames
-
-    def send_command(self, rc: Sequence[int]) -> None:
-        """Send RC values (roll, pitch, yaw, throttle, aux3, aux4) to the FC."""
-        wire = self._sender.encode(rc)
-        with port_errors(self.url):
-            self.port.write(wire)

@@ -19,6 +19,7 @@ from pathlib import Path
 
 from wftool.fc.fsp_setup import DEFAULT_RATE_HZ, fsp_planner
 from wftool.fc.params import apply_plan
+from wftool.fsp import DEFAULT_BAUDRATE
 from wftool.sitl.process import LOOPBACK, VirtualFC, uart_url
 
 FSP_UART = 2
@@ -123,7 +124,7 @@ class VirtualFcSession:
         binary: Path,
         workdir: Path,
         *,
-        baud: int = 2_000_000,
+        baud: int = DEFAULT_BAUDRATE,
         rate_hz: int = DEFAULT_RATE_HZ,
         motion: Motion | None = None,
     ) -> None:

@@ -9,11 +9,11 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from wftool.errors import PortError
-from wftool.fsp import FspReader
+from wftool.fsp import FspPort, StatePacket
 from wftool.verify.monitor import StreamMonitor, StreamSummary
 from wftool.verify.recording import Event, Recorder
 from wftool.verify.uplink import pattern_command
@@ -40,11 +40,16 @@ def run_live(
     on_refresh: Callable[[StreamSummary], None] | None = None,
     stop: threading.Event | None = None,
     now: Callable[[], float] = time.monotonic,
+    on_packets: Callable[[Sequence[StatePacket], float], None] | None = None,
 ) -> StreamSummary:
-    """Verify the stream on `options.url` until the duration is up; the final summary."""
+    """Verify the stream on `options.url` until the duration is up; the final summary.
+
+    The port is only read here; the monitor decodes (one decoder per connection).
+    `on_packets` gets each read's packets and its arrival time, after the monitor has them.
+    """
     start = now()
     end = start + options.duration_s if options.duration_s is not None else float("inf")
-    reader: FspReader | None = None
+    reader: FspPort | None = None
     backoff = BACKOFF_FIRST_S
     retry_at = start
     command_index = 0
@@ -76,7 +81,7 @@ def run_live(
                     time.sleep(min(retry_at - t, end - t, READ_TIMEOUT_S))
                     continue
                 try:
-                    reader = FspReader(options.url, options.baudrate).open()
+                    reader = FspPort(options.url, options.baudrate).open()
                 except PortError:
                     if not connected_once:
                         raise  # the caller's connection error, not a dropout
@@ -99,6 +104,8 @@ def run_live(
                     packets = monitor.feed(data, t)
                     if recorder is not None:
                         recorder.packets(packets)
+                    if on_packets is not None and packets:
+                        on_packets(packets, t)
                 if period is not None and t >= next_command:
                     rc = pattern_command(command_index, options.uplink_rate_hz)
                     reader.send_command(rc)

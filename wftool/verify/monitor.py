@@ -10,9 +10,9 @@ from __future__ import annotations
 
 from collections import Counter, deque
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
-from wftool.fsp import SensorFrame, StateDecoder, StatePacket
+from wftool.fsp import SensorFrame, StateDecoder, StatePacket, StreamStats
 from wftool.fsp.clock import ClockState
 from wftool.fsp.framing import Rejection
 from wftool.verify.uplink import UplinkStats, UplinkTracker
@@ -117,11 +117,22 @@ class StreamSummary:
 @dataclass
 class _Connection:
     decoder: StateDecoder
+    """One per connection: a new connection is a new stream (FC clock, sequence, sync)."""
     opened_at: float
     synced_errors: int | None = None
-    last_frame: SensorFrame | None = None
-    last_epoch: int = 0
-    last_arrival: float | None = None
+
+    def stats(self) -> tuple[StreamStats, int]:
+        """The decoder's totals without the chunk cut by joining mid-stream, and that count."""
+        stats = self.decoder.stats
+        sync = self.synced_errors
+        if sync is None:
+            sync = min(_SYNC_ALLOWANCE, stats.errors)
+        if sync:  # the cut chunk: whichever cause it landed in, it is not an error
+            rejected = dict(stats.rejected)
+            cause = next(c for c in Rejection if rejected[c])
+            rejected[cause] -= sync
+            stats = replace(stats, rejected=rejected)
+        return stats, sync
 
 
 @dataclass
@@ -138,7 +149,8 @@ class StreamMonitor:
     def __post_init__(self) -> None:
         self._connection: _Connection | None = None
         self._last_decoder: StateDecoder | None = None  # for E1 and clock after a disconnect
-        self._closed: list[dict[str, int]] = []  # totals of finished connections
+        self._closed = StreamStats(rejected=dict.fromkeys(Rejection, 0))  # finished connections
+        self._closed_sync = 0
         self._started: float | None = None
         self._now = 0.0
         self._connected_s = 0.0
@@ -161,7 +173,9 @@ class StreamMonitor:
         if connection is None:
             return
         self._connected_s += t - connection.opened_at
-        self._closed.append(self._totals(connection))
+        stats, sync = connection.stats()
+        self._closed += stats
+        self._closed_sync += sync
         self._connection = None
         self._now = t
 
@@ -170,13 +184,16 @@ class StreamMonitor:
         if connection is None:
             raise RuntimeError("feed() before connected()")
         self._now = t
-        packets = connection.decoder.feed(data, t)
+        decoder = connection.decoder
+        before = decoder.last_packet
+        packets = decoder.feed(data, t)
         if not packets:
             return packets
         if connection.synced_errors is None:
-            connection.synced_errors = min(_SYNC_ALLOWANCE, connection.decoder.stats.errors)
-        previous, epoch = connection.last_frame, connection.last_epoch
-        last_arrival = connection.last_arrival
+            connection.synced_errors = min(_SYNC_ALLOWANCE, decoder.stats.errors)
+        previous = epoch = last_arrival = None
+        if before is not None:
+            previous, epoch, last_arrival = before.frames[1], before.epoch, before.arrival_time
         for packet in packets:
             first, second = packet.frames
             if previous is not None and packet.epoch == epoch:
@@ -188,8 +205,6 @@ class StreamMonitor:
             previous, epoch = second, packet.epoch
             if self.uplink is not None:
                 self.uplink.observe(packet, t)
-        connection.last_frame, connection.last_epoch = previous, epoch
-        connection.last_arrival = last_arrival
         self.latest = previous
         recent = self._recent
         recent.append((t, 2 * len(packets)))
@@ -205,64 +220,41 @@ class StreamMonitor:
 
     def summary(self, now: float | None = None) -> StreamSummary:
         now = self._now if now is None else now
-        totals = Counter()
-        for closed in self._closed:
-            totals.update(closed)
+        totals, sync = self._closed, self._closed_sync
         connection = self._connection
         connected_s = self._connected_s
         if connection is not None:
-            totals.update(self._totals(connection))
+            stats, current_sync = connection.stats()
+            totals, sync = totals + stats, sync + current_sync
             connected_s += now - connection.opened_at
         last = self._last_decoder
         fc = self.fc_intervals.summary()
-        frames = totals["frames"]
+        frames = totals.frames
         window = [n for t, n in self._recent if t >= now - RATE_WINDOW_S]
         window_s = min(RATE_WINDOW_S, now - connection.opened_at) if connection else RATE_WINDOW_S
         return StreamSummary(
             port=self.port,
             duration_s=now - self._started if self._started is not None else 0.0,
             connected_s=connected_s,
-            packets=totals["packets"],
+            packets=totals.packets,
             frames=frames,
             frame_rate_hz=frames / connected_s if connected_s > 0 else 0.0,
-            packet_rate_hz=totals["packets"] / connected_s if connected_s > 0 else 0.0,
+            packet_rate_hz=totals.packets / connected_s if connected_s > 0 else 0.0,
             current_frame_rate_hz=sum(window) / window_s if window_s > 0 else 0.0,
             source_rate_hz=1e6 / fc.mean_us if fc is not None and fc.mean_us > 0 else None,
             expected_rate_hz=self.expected_rate_hz,
             fc_interval=fc,
             arrival_interval=self.arrival_intervals.summary(),
-            lost_frames=totals["lost_frames"],
-            lost_packets=totals["lost_packets"],
-            fc_drops=totals["fc_drops"],
+            lost_frames=totals.lost_frames,
+            lost_packets=totals.lost_packets,
+            fc_drops=totals.fc_drops,
             e1=last.stats.e1 if last is not None else None,
-            rejected={cause.value: totals[cause.value] for cause in Rejection},
-            sync_rejected=totals["sync_rejected"],
-            resets=totals["resets"],
-            wraps=totals["wraps"],
+            rejected={cause.value: totals.rejected[cause] for cause in Rejection},
+            sync_rejected=sync,
+            resets=totals.resets,
+            wraps=totals.wraps,
             reconnects=self._reconnects,
             clock=last.clock_state if last is not None else None,
             uplink=self.uplink.stats() if self.uplink is not None else None,
             connected=connection is not None,
         )
-
-    @staticmethod
-    def _totals(connection: _Connection) -> dict[str, int]:
-        stats = connection.decoder.stats
-        sync = connection.synced_errors
-        if sync is None:
-            sync = min(_SYNC_ALLOWANCE, stats.errors)
-        rejected = dict(stats.rejected)
-        if sync:  # the cut chunk: whichever cause it landed in, it is not an error
-            cause = next(c for c in Rejection if rejected[c])
-            rejected[cause] -= sync
-        return {
-            "packets": stats.packets,
-            "frames": stats.frames,
-            "lost_frames": stats.lost_frames,
-            "lost_packets": stats.lost_packets,
-            "fc_drops": stats.fc_drops,
-            "resets": stats.resets,
-            "wraps": stats.wraps,
-            "sync_rejected": sync,
-            **{cause.value: count for cause, count in rejected.items()},
-        }

@@ -77,6 +77,18 @@ CSV_COLUMNS = (
 )
 
 
+def run_metadata(
+    port: str, baudrate: int, expected_rate_hz: float | None, uplink_rate_hz: float | None
+) -> dict[str, str]:
+    """What a recording keeps about its run, for `replay_recording` to set up the same monitor."""
+    return {
+        "port": port,
+        "baud": str(baudrate),
+        "expected_rate_hz": str(expected_rate_hz or ""),
+        "uplink_rate_hz": str(uplink_rate_hz or ""),
+    }
+
+
 def _finite(values: Sequence[float]) -> list[float | None]:
     return [None if math.isnan(v) else v for v in values]
 

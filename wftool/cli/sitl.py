@@ -1,0 +1,96 @@
+"""Commands: the virtual FC (sitl)."""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import click
+from rich.console import Console
+
+from wftool.cli.verify import criteria_options, run_options, verify_stream
+from wftool.fsp import DEFAULT_BAUDRATE
+
+err = Console(stderr=True, highlight=False)
+
+
+@click.command("sitl")
+@click.option(
+    "--binary",
+    type=click.Path(exists=True, dir_okay=False, path_type=Path),
+    help="Run this SITL program [build the patched one: wftool build sitl].",
+)
+@click.option(
+    "--workdir",
+    type=click.Path(file_okay=False, path_type=Path),
+    help="Where SITL keeps eeprom.bin [a new scratch directory].",
+)
+@click.option(
+    "--rate",
+    "rate_hz",
+    type=click.IntRange(50, 4000),
+    default=1100,
+    show_default=True,
+    help="fsp_rate_hz to configure.",
+)
+@click.option(
+    "--motion/--no-motion",
+    default=True,
+    show_default=True,
+    help="Feed synthetic IMU motion through SITL's simulator input.",
+)
+@click.option(
+    "--verify",
+    "verify_s",
+    type=float,
+    metavar="SECONDS",
+    help="Verify the stream for SECONDS, then stop with the verdict as exit code.",
+)
+@click.option(
+    "--project",
+    "project_dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    help="The wftool checkout to build in [found from the current directory].",
+)
+@run_options
+@criteria_options
+def sitl(
+    binary: Path | None, workdir: Path | None, rate_hz: int, motion: bool,
+    verify_s: float | None, project_dir: Path | None, **options: Any,
+) -> None:  # fmt: skip
+    """Run the virtual FC: the patched SITL with FSP on UART2, until Ctrl-C (or --verify)."""
+    from wftool.sitl.session import Motion, VirtualFcSession
+
+    if binary is None:
+        binary = build_sitl(project_dir)
+    workdir = workdir or Path(tempfile.mkdtemp(prefix="wftool-sitl-"))
+    session = VirtualFcSession(
+        binary, workdir, rate_hz=rate_hz, motion=Motion() if motion else None
+    )
+    err.print(f"starting the virtual FC in {workdir} …")
+    with session:
+        err.print(f"MSP/CLI  [bold]{session.msp_url}[/]")
+        err.print(f"FSP      [bold]{session.fsp_url}[/]  (fsp_rate_hz {rate_hz})")
+        if verify_s is not None:
+            verify_stream(session.fsp_url, DEFAULT_BAUDRATE, verify_s, virtual_fc=True, **options)
+            return
+        err.print("running; Ctrl-C stops it")
+        try:
+            session.serve(on_reset=lambda: err.print("the FC reset itself; starting it again"))
+        except KeyboardInterrupt:
+            err.print("stopping")
+
+
+def build_sitl(project_dir: Path | None) -> Path:
+    """The patched SITL program, built (or found up to date) in the wftool checkout."""
+    from wftool.cli.build import build_with_progress
+    from wftool.firmware import find_project
+
+    result = build_with_progress(find_project(project_dir), "sitl")
+    if not result.up_to_date:
+        err.print(f"built {result.firmware}")
+    return result.firmware
+
+
+COMMANDS: list[click.Command] = [sitl]

@@ -1,0 +1,146 @@
+"""The verify API: judge an FSP stream, live or recorded; the CLI only renders what it returns.
+
+    session = VerifySession("socket://127.0.0.1:5762", duration_s=10,
+                            criteria=criteria_for(virtual_fc=True))
+    result = session.run()
+    print(result.verdict.passed, result.summary.frames)
+    result.check()   # raises VerificationFailed naming the failed checks
+
+`VerifySession` wires what a run needs — the monitor (which decodes), the uplink pattern,
+the recording — runs the live loop and returns the summary with its verdict. `replay`
+does the same for a recording. `criteria_for` turns a user's limits into `Criteria`.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+from wftool.errors import VerificationFailed
+from wftool.fsp import DEFAULT_BAUDRATE, SensorFrame, StatePacket
+from wftool.verify.criteria import VIRTUAL_FC, Criteria, Verdict, judge
+from wftool.verify.live import LiveOptions, run_live
+from wftool.verify.monitor import StreamMonitor, StreamSummary
+from wftool.verify.recording import Recorder, replay_recording, run_metadata
+from wftool.verify.uplink import UplinkTracker
+
+
+def criteria_for(
+    *,
+    uplink: bool = False,
+    virtual_fc: bool = False,
+    min_rate_hz: float | None = None,
+    max_spread_ms: float | None = None,
+    max_loss_pct: float | None = None,
+    max_drops_pct: float | None = None,
+    max_errors: int | None = None,
+) -> Criteria:
+    """The criteria for a user's limits: a limit left at None takes the default, on the
+    virtual FC its allowances (`wftool.verify.criteria.VIRTUAL_FC`)."""
+    defaults = VIRTUAL_FC if virtual_fc else Criteria()
+
+    def pick(value: Any, default: Any) -> Any:
+        return default if value is None else value
+
+    return Criteria(
+        min_rate_hz=pick(min_rate_hz, defaults.min_rate_hz),
+        max_spread_ms=pick(max_spread_ms, defaults.max_spread_ms),
+        max_loss_pct=pick(max_loss_pct, defaults.max_loss_pct),
+        max_drops_pct=pick(max_drops_pct, defaults.max_drops_pct),
+        max_errors=pick(max_errors, defaults.max_errors),
+        uplink=uplink,
+    )
+
+
+@dataclass(frozen=True)
+class VerifyResult:
+    """What a run saw, and whether it passes."""
+
+    summary: StreamSummary
+    verdict: Verdict
+    latest: SensorFrame | None
+    """The newest frame, for a dashboard."""
+
+    def as_json(self) -> dict:
+        return {**self.summary.as_json(), "verdict": self.verdict.as_json()}
+
+    def check(self) -> None:
+        """Raise `VerificationFailed` naming the failed checks, unless the verdict passed."""
+        if not self.verdict.passed:
+            failed = "; ".join(c.describe() for c in self.verdict.checks if not c.passed)
+            raise VerificationFailed(f"stream verification failed: {failed}")
+
+
+class VerifySession:
+    """One verify run on a port: `run()` until the duration is up, then the result.
+
+    `uplink_rate_hz` sends the uplink pattern (None sends nothing); `criteria.uplink` is
+    what judges it (`criteria_for(uplink=True)`). `record_path` (MCAP) and `csv_path` are
+    created here, so a path that cannot be written fails before the run, and finished when
+    the run ends, however it ends (`close()` them when the session is never run).
+    """
+
+    def __init__(
+        self,
+        url: str,
+        baudrate: int = DEFAULT_BAUDRATE,
+        duration_s: float | None = None,
+        *,
+        criteria: Criteria | None = None,
+        expected_rate_hz: float | None = None,
+        uplink_rate_hz: float | None = None,
+        record_path: Path | None = None,
+        csv_path: Path | None = None,
+    ) -> None:
+        self.options = LiveOptions(url, baudrate, duration_s, uplink_rate_hz)
+        self.criteria = criteria or criteria_for(uplink=uplink_rate_hz is not None)
+        uplink = UplinkTracker() if uplink_rate_hz is not None else None
+        self.monitor = StreamMonitor(url, expected_rate_hz, uplink=uplink)
+        self._recorder = None
+        if record_path or csv_path:
+            metadata = run_metadata(url, baudrate, expected_rate_hz, uplink_rate_hz)
+            self._recorder = Recorder(record_path, csv_path, metadata)
+
+    def run(
+        self,
+        on_refresh: Callable[[StreamSummary], None] | None = None,
+        stop: threading.Event | None = None,
+        on_packets: Callable[[Sequence[StatePacket], float], None] | None = None,
+    ) -> VerifyResult:
+        """Verify until the duration is up or `stop` is set; `on_refresh` gets a summary
+        four times a second. Ctrl-C propagates: `result()` then judges what was seen."""
+        try:
+            summary = run_live(
+                self.options, self.monitor, self._recorder, on_refresh, stop, on_packets=on_packets
+            )
+        finally:
+            self.close()
+        return self.result(summary)
+
+    def close(self) -> None:
+        """Finish the recording files (if any)."""
+        if self._recorder is not None:
+            self._recorder.close()
+            self._recorder = None
+
+    def judge(self, summary: StreamSummary) -> Verdict:
+        return judge(summary, self.criteria)
+
+    def result(self, summary: StreamSummary | None = None) -> VerifyResult:
+        """The result of what the run has seen so far (or of `summary`)."""
+        summary = summary if summary is not None else self.monitor.summary()
+        return VerifyResult(summary, self.judge(summary), self.monitor.latest)
+
+
+def replay(
+    path: Path, expected_rate_hz: float | None = None, criteria: Criteria | None = None
+) -> VerifyResult:
+    """The result of a `verify --record` MCAP file, computed again. The uplink is judged
+    when the recorded run sent it, whatever `criteria.uplink` says."""
+    monitor = replay_recording(path, expected_rate_hz)
+    criteria = replace(criteria or Criteria(), uplink=monitor.uplink is not None)
+    summary = monitor.summary()
+    return VerifyResult(summary, judge(summary, criteria), monitor.latest)
