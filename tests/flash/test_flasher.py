@@ -16,6 +16,7 @@ from pathlib import Path
 import pytest
 from intelhex import IntelHex
 
+from tests.conftest import run_cli
 from tests.flash.standin import UNTOUCHED, StandinDfuUtil
 from wftool.cli import fc as fc_commands
 from wftool.cli import main
@@ -271,8 +272,6 @@ def test_wftool_flash_from_a_subdirectory_flashes_the_projects_build(
     subdirectory.mkdir()
     monkeypatch.chdir(subdirectory)
     monkeypatch.delenv(PROJECT_ENV, raising=False)
-    with pytest.raises(SystemExit) as exit_info:
-        main(["flash", "--backup-dir", str(tmp_path / "b")])
-    out, err = capsys.readouterr()
-    assert exit_info.value.code == 0, err
+    code, out, err = run_cli(capsys, "flash", "--backup-dir", str(tmp_path / "b"))
+    assert code == 0, err
     assert out.splitlines()[0] == "flashed fw.hex; erased sectors 0, 2"

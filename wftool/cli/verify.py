@@ -14,7 +14,7 @@ from rich.live import Live
 
 from wftool.errors import UsageError
 from wftool.fsp import DEFAULT_BAUDRATE
-from wftool.verify.criteria import Criteria
+from wftool.verify.criteria import VIRTUAL_FC, Criteria
 from wftool.verify.dashboard import render
 from wftool.verify.session import VerifyResult, VerifySession, criteria_for, replay
 
@@ -32,11 +32,13 @@ criteria_options = _options(
     click.option("--expected-rate", type=float, help="Frame rate the FC should stream (Hz)."),
     click.option("--min-rate", type=float, help="Minimum frame rate [95 % of expected]."),
     click.option("--max-spread-ms", type=float,
-                 help="Max FC-interval P99−P1 [half a period; virtual FC: 50]."),
+                 help="Max FC-interval P99−P1 "
+                 f"[half a period; virtual FC: {VIRTUAL_FC.max_spread_ms:g}]."),
     click.option("--max-loss", type=float, default=Criteria.max_loss_pct, show_default=True,
                  help="Max transport loss, % of frames."),
     click.option("--max-fc-drops", type=float,
-                 help="Max frames the FC dropped (queue full), % of frames [0.1; virtual FC: 1]."),
+                 help="Max frames the FC dropped (queue full), % of frames "
+                 f"[{Criteria.max_drops_pct:g}; virtual FC: {VIRTUAL_FC.max_drops_pct:g}]."),
     click.option("--max-errors", type=int, default=Criteria.max_errors, show_default=True,
                  help="Max rejected chunks (COBS, length, version, CRC)."),
     click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout."),
