@@ -4,8 +4,8 @@ virtual flight controller (the patched Betaflight SITL).
 The firmware fixtures clone this repository's HEAD (commit before running them locally),
 fetch the pinned Betaflight tree and build once per session; they skip, with the reason,
 only where the Betaflight repository cannot be reached. WFTOOL_SITL_BINARY points the SITL
-tests at an existing binary instead. SITL binds fixed ports: to run two test sessions at
-once, give each its own network namespace (`unshare -n sh -c 'ip link set lo up && …'`).
+tests at an existing binary instead. Every virtual FC a test starts takes a free port base
+(`free_port_base()`), so test sessions, benchmarks and a `wftool sitl` run side by side.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ import pytest
 from wftool.cli import main
 from wftool.firmware import BuildOptions, BuildResult, build
 from wftool.firmware.project import Project
-from wftool.sitl.process import VirtualFC
+from wftool.sitl.process import VirtualFC, free_port_base
 
 REPO = Path(__file__).resolve().parent.parent
 BUILD_JOBS = min(os.cpu_count() or 1, 2)
@@ -69,10 +69,22 @@ def sitl_binary(request: pytest.FixtureRequest) -> Path:
     return request.getfixturevalue("sitl_build").firmware
 
 
+@pytest.fixture(scope="session")
+def firmware_tree(request: pytest.FixtureRequest) -> Path:
+    """The patched Betaflight tree `sitl_binary` was built from."""
+    if os.environ.get("WFTOOL_SITL_BINARY"):
+        tree = REPO / "betaflight"
+        if not (tree / "src" / "main").is_dir():
+            pytest.skip("WFTOOL_SITL_BINARY is set but betaflight/ is not checked out")
+        return tree
+    request.getfixturevalue("sitl_build")
+    return request.getfixturevalue("fresh_clone").tree
+
+
 @pytest.fixture
 def virtual_fc(sitl_binary: Path, tmp_path: Path) -> Iterator[VirtualFC]:
     """A freshly started SITL with an empty configuration, stopped after the test."""
-    with VirtualFC(sitl_binary, tmp_path / "sitl") as fc:
+    with VirtualFC(sitl_binary, tmp_path / "sitl", port_base=free_port_base()) as fc:
         yield fc
 
 

@@ -78,3 +78,18 @@ class VerificationFailed(WftoolError):
 
 class SitlError(WftoolError):
     """The SITL (virtual flight controller) process would not start, or died."""
+
+
+class PortInUseError(SitlError):
+    """A port the virtual FC needs is held by another program (another virtual FC?)."""
+
+    exit_code = EXIT_USAGE
+
+
+class Terminated(BaseException):
+    """SIGTERM or SIGHUP arrived: unwind (closing ports, stopping the virtual FC) and exit
+    128 + the signal number, as a shell reports a process the signal ended."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = signum

@@ -70,7 +70,8 @@ def test_patched_firmware_gets_fully_configured(virtual_fc: VirtualFC, tmp_path:
     assert (config.functions, config.msp_baud) == (FSP_FUNCTION, 2_000_000)
     with MspClient.open(virtual_fc.url) as msp:
         assert msp.features() & FEATURE_RX_MSP
-    assert b"bind port 5762 for UART2" in virtual_fc.log_path.read_bytes()  # FSP opened it
+    opened = f"bind port {virtual_fc.port_base + 2} for UART2".encode()
+    assert opened in virtual_fc.log_path.read_bytes()  # FSP opened it
 
 
 def test_serial_line_round_trip_and_function_names() -> None:

@@ -4,13 +4,25 @@ from __future__ import annotations
 
 import os
 import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
-from wftool.errors import SitlError
+from wftool.errors import PortInUseError, SitlError
 from wftool.fc.msp import MspClient, RebootMode
-from wftool.sitl.process import VirtualFC, uart_url
+from wftool.sitl.process import (
+    LOOPBACK,
+    SIM_PORT_OFFSET,
+    VirtualFC,
+    free_port_base,
+    ports_in_use,
+    uart_url,
+)
 
 
 def _alive(pid: int) -> bool:
@@ -21,8 +33,30 @@ def _alive(pid: int) -> bool:
     return True
 
 
+def sitl_pids(port_base: int) -> list[int]:
+    """The processes running a SITL with this port base (from their command lines)."""
+    pids = []
+    for entry in Path("/proc").iterdir():
+        try:
+            argv = (entry / "cmdline").read_bytes().split(b"\0")
+        except (OSError, ValueError):
+            continue
+        if f"--port-base={port_base}".encode() in argv:
+            pids.append(int(entry.name))
+    return pids
+
+
+def wait_for(condition: object, timeout: float) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if condition():  # type: ignore[operator]
+            return True
+        time.sleep(0.05)
+    return False
+
+
 def test_start_answers_msp_and_stop_leaves_no_process(sitl_binary: Path, tmp_path: Path) -> None:
-    fc = VirtualFC(sitl_binary, tmp_path)
+    fc = VirtualFC(sitl_binary, tmp_path, port_base=free_port_base())
     with fc:
         assert fc._process is not None
         pid = fc._process.pid
@@ -31,11 +65,12 @@ def test_start_answers_msp_and_stop_leaves_no_process(sitl_binary: Path, tmp_pat
         assert (tmp_path / "eeprom.bin").exists()
     assert not fc.running
     assert not _alive(pid)
-    assert b"bind port 5761 for UART1" in fc.log_path.read_bytes()
+    assert f"bind port {fc.port_base + 1} for UART1".encode() in fc.log_path.read_bytes()
+    assert not ports_in_use(fc.port_base)
 
 
 def test_stop_kills_a_process_that_ignores_sigterm(sitl_binary: Path, tmp_path: Path) -> None:
-    fc = VirtualFC(sitl_binary, tmp_path)
+    fc = VirtualFC(sitl_binary, tmp_path, port_base=free_port_base())
     fc.start()
     assert fc._process is not None
     pid = fc._process.pid
@@ -54,18 +89,84 @@ def test_wait_back_restarts_after_a_firmware_reset(virtual_fc: VirtualFC) -> Non
     assert b"[system]Reset!" in virtual_fc.log_path.read_bytes()
 
 
-def test_second_sitl_in_the_same_namespace_is_refused(
+def test_two_virtual_fcs_run_side_by_side(
     virtual_fc: VirtualFC, sitl_binary: Path, tmp_path: Path
 ) -> None:
-    with pytest.raises(SitlError, match="another SITL"), VirtualFC(sitl_binary, tmp_path / "b"):
-        pass
+    with VirtualFC(sitl_binary, tmp_path / "b", port_base=free_port_base()) as other:
+        assert other.port_base != virtual_fc.port_base
+        for fc in (virtual_fc, other):
+            with MspClient.open(fc.url) as msp:
+                assert msp.pid_cycle_us() > 0  # each runs its own flight loop
+
+
+def test_a_second_sitl_on_the_same_ports_is_refused_naming_the_port(
+    virtual_fc: VirtualFC, sitl_binary: Path, tmp_path: Path
+) -> None:
+    second = VirtualFC(sitl_binary, tmp_path / "b", port_base=virtual_fc.port_base)
+    with pytest.raises(PortInUseError, match=f"TCP {virtual_fc.port_base + 1} is in use"):
+        second.start()
+    assert not second.running
+
+
+@pytest.mark.parametrize("kind", [socket.SOCK_STREAM, socket.SOCK_DGRAM])
+def test_a_port_another_program_holds_is_named(
+    sitl_binary: Path, tmp_path: Path, kind: socket.SocketKind
+) -> None:
+    base = free_port_base()
+    port = base + 2 if kind == socket.SOCK_STREAM else base + SIM_PORT_OFFSET + 3
+    with socket.socket(socket.AF_INET, kind) as holder:
+        holder.bind((LOOPBACK, port))
+        name = "TCP" if kind == socket.SOCK_STREAM else "UDP"
+        with pytest.raises(PortInUseError, match=f"^{name} {port} is in use"):
+            VirtualFC(sitl_binary, tmp_path, port_base=base).start()
+    assert not sitl_pids(base)
 
 
 def test_missing_binary_is_a_one_line_error(tmp_path: Path) -> None:
     with pytest.raises(SitlError, match="cannot run SITL binary"):
-        VirtualFC(tmp_path / "nope", tmp_path).start()
+        VirtualFC(tmp_path / "nope", tmp_path, port_base=free_port_base()).start()
 
 
-def test_uart_urls_follow_the_sitl_port_scheme() -> None:
+def test_uart_urls_follow_the_port_base() -> None:
     assert uart_url(1) == "socket://127.0.0.1:5761"
-    assert VirtualFC.uart_url(2) == "socket://127.0.0.1:5762"
+    assert uart_url(2, 20000) == "socket://127.0.0.1:20002"
+    assert VirtualFC(Path("sitl"), Path("."), port_base=30000).uart_url(2) == uart_url(2, 30000)
+
+
+@pytest.fixture
+def wftool_sitl(sitl_binary: Path, tmp_path: Path) -> Iterator[tuple[subprocess.Popen, int]]:
+    """`wftool sitl` running in its own process, with the SITL it started up."""
+    base = free_port_base()
+    process = subprocess.Popen(
+        [sys.executable, "-m", "wftool", "sitl", "--binary", str(sitl_binary),
+         "--workdir", str(tmp_path), "--port-base", str(base), "--no-motion"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert process.stderr is not None
+        for line in process.stderr:  # configured and serving: "running; Ctrl-C stops it"
+            if line.startswith("running"):
+                break
+        assert sitl_pids(base)
+        yield process, base
+    finally:
+        process.kill()
+        process.wait()
+        for pid in sitl_pids(base):
+            os.kill(pid, signal.SIGKILL)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP, signal.SIGINT, signal.SIGKILL])
+def test_the_sitl_ends_with_wftool_however_wftool_ends(
+    wftool_sitl: tuple[subprocess.Popen, int], sig: signal.Signals
+) -> None:
+    """Ctrl-C, SIGTERM and SIGHUP unwind wftool, which stops the SITL; SIGKILL (a crash)
+    cannot be caught, and the SITL ends by its parent-death signal."""
+    process, base = wftool_sitl
+    process.send_signal(sig)
+    code = process.wait(30)
+    assert wait_for(lambda: not sitl_pids(base), 15), "the SITL outlived wftool"
+    assert wait_for(lambda: not ports_in_use(base), 5)
+    # Ctrl-C is how `wftool sitl` is meant to stop: that is a success
+    expected = {signal.SIGINT: 0, signal.SIGKILL: -signal.SIGKILL}.get(sig, 128 + sig)
+    assert code == expected

@@ -1,44 +1,53 @@
-"""FSP end to end on the patched SITL, a real Betaflight: configured through the CLI,
-read on TCP 5762, decoded with wftool.fsp.
+"""The virtual FC runs like a board: every task at its configured rate, FSP frames exactly
+one lockstep interval apart, nothing dropped. Against the patched SITL, a real Betaflight:
+configured through the CLI, read over TCP, decoded with wftool.fsp.
 
-SITL does not run in real time, so the lockstep rate is computed from the loop rate the
-SITL itself reports over the same window: its `tasks` run count for the PID task (reset by
-each `tasks`), with the firmware's rule N = floor((1e6 / fsp_rate_hz) / looptime) + 1 and
-SITL's nominal PID looptime (virtual gyro at 8 kHz, gyro_sync.c, times pid_process_denom).
+The SITL's lockstep clock makes FC time exact, so these are statements about FC time (task
+rates from the FC's own `tasks`, frame sample times), not timings of the machine running
+the test. The configured rates come from the firmware itself: the `TASK_PERIOD_HZ(n)` each
+task is declared with in the tree's src/main/fc/tasks.c, the settings the CLI reports, and
+the PID looptime MSP reports.
 """
 
 from __future__ import annotations
 
-import math
+import re
 import threading
 import time
+from collections.abc import Iterator
+from itertools import pairwise
 from pathlib import Path
 
 import pytest
 
 from wftool.fc.cli_session import CliSession
+from wftool.fc.msp import MspClient
 from wftool.fsp import FspReader, StatePacket
-from wftool.sitl.session import VirtualFcSession
+from wftool.fsp.schedule import frame_rate_hz, lockstep_interval
+from wftool.sitl.process import free_port_base
+from wftool.sitl.session import Motion, VirtualFcSession
 
 pytestmark = pytest.mark.slow
 
-SITL_GYRO_LOOPTIME_US = 125
-WINDOW_S = 10.0
+RATE_TOLERANCE = 0.05
+SETTLE_S = 6.0
+"""`tasks` rates are moving averages over 64 runs: a 50 Hz task needs ~4 s to settle."""
+MIN_CHECKED_HZ = 50
+_DECLARED = re.compile(r'DEFINE_TASK\("(\w+)", (?:"(\w+)"|NULL), .*TASK_PERIOD_HZ\((\d+)\)')
 
 
 class Collector(threading.Thread):
-    """Reads the FSP port in the background: (arrival time, packet) pairs."""
+    """Reads the FSP port in the background."""
 
     def __init__(self, url: str) -> None:
         super().__init__(daemon=True)
         self.reader = FspReader(url).open()
-        self.packets: list[tuple[float, StatePacket]] = []
+        self.packets: list[StatePacket] = []
         self.done = threading.Event()
 
     def run(self) -> None:
         while not self.done.is_set():
-            for packet in self.reader.read(0.05):
-                self.packets.append((packet.arrival_time, packet))
+            self.packets.extend(self.reader.read(0.05))
 
     def stop(self) -> None:
         self.done.set()
@@ -46,45 +55,108 @@ class Collector(threading.Thread):
         self.reader.close()
 
 
-def pid_runs(session: CliSession) -> tuple[float, int]:
-    """(time of the reply, PID task runs since the previous `tasks`)."""
-    output = session.run("tasks")
-    at = time.monotonic()
-    row = next(line for line in output.splitlines() if "(            PID)" in line)
-    columns = row.split(")", 1)[1].split()  # rate max avg maxload avgload total late run reqd
-    return at, int(columns[7])
+def declared_rates(tree: Path) -> dict[str, int]:
+    """Task name -> the rate its DEFINE_TASK declares, where that is a number."""
+    rates = {}
+    for line in (tree / "src/main/fc/tasks.c").read_text().splitlines():
+        if match := _DECLARED.search(line):
+            name, sub, hz = match.groups()
+            rates[f"{name}/{sub}" if sub else name] = int(hz)
+    return rates
 
 
-def test_stream_is_valid_gapless_and_lockstepped(sitl_binary: Path, tmp_path: Path) -> None:
-    with VirtualFcSession(sitl_binary, tmp_path) as fc:
-        collector = Collector(fc.fsp_url)
-        collector.start()
-        session = CliSession.open(fc.msp_url)  # left open: `exit` would reboot the FC
-        try:
-            session.enter()
-            rate_hz = int(session.get("fsp_rate_hz").value)
-            denom = int(session.get("pid_process_denom").value)
-            t0, _ = pid_runs(session)
-            time.sleep(WINDOW_S)
-            t1, runs = pid_runs(session)
-        finally:
-            session.close()
-            collector.stop()
+def task_rates(output: str) -> dict[str, int]:
+    """Task name -> rate/hz from the CLI's `tasks` table (two SYSTEM rows: LOAD, UPDATE)."""
+    rates: dict[str, int] = {}
+    for line in output.splitlines():
+        if match := re.match(r"\d+ - \(\s*(\w+)\)\s+(\d+)", line.strip()):
+            name, hz = match.group(1), int(match.group(2))
+            if name == "SYSTEM":
+                name = "SYSTEM/LOAD" if "SYSTEM/LOAD" not in rates else "SYSTEM/UPDATE"
+            rates[name] = hz
+    return rates
+
+
+@pytest.fixture
+def moving_fc(sitl_binary: Path, tmp_path: Path) -> Iterator[VirtualFcSession]:
+    with VirtualFcSession(
+        sitl_binary, tmp_path, motion=Motion(), port_base=free_port_base()
+    ) as session:
+        yield session
+
+
+def test_every_task_runs_at_its_configured_rate(
+    moving_fc: VirtualFcSession, firmware_tree: Path
+) -> None:
+    collector = Collector(moving_fc.fsp_url)  # a client on FSP, as in flight
+    collector.start()
+    time.sleep(SETTLE_S)
+    with MspClient.open(moving_fc.msp_url) as msp:
+        looptime_us = msp.pid_cycle_us()
+    session = CliSession.open(moving_fc.msp_url)  # left open: `exit` would reboot the FC
+    try:
+        serial_hz = int(session.get("serial_update_rate_hz").value)
+        measured = task_rates(session.run("tasks"))
+    finally:
+        session.close()
+        collector.stop()
+
+    configured = {
+        name: hz for name, hz in declared_rates(firmware_tree).items() if hz >= MIN_CHECKED_HZ
+    }
+    configured.update(
+        GYRO=round(1e6 / looptime_us),
+        FILTER=round(1e6 / looptime_us),
+        PID=round(1e6 / looptime_us),
+        SERIAL=serial_hz,
+        FSP=frame_rate_hz(moving_fc.rate_hz, looptime_us),
+    )
+    checked = {name: hz for name, hz in configured.items() if name in measured}
+    assert {"ACC", "ATTITUDE", "SERIAL", "FSP", "PID", "DISPATCH"} <= checked.keys(), measured
+    off = {
+        name: (measured[name], hz)
+        for name, hz in checked.items()
+        if abs(measured[name] - hz) > RATE_TOLERANCE * hz
+    }
+    assert not off, f"(measured, configured) Hz: {off}"
+
+
+def test_frames_are_one_lockstep_interval_apart_with_nothing_dropped(
+    moving_fc: VirtualFcSession,
+) -> None:
+    with MspClient.open(moving_fc.msp_url) as msp:
+        looptime_us = msp.pid_cycle_us()
+    collector = Collector(moving_fc.fsp_url)
+    collector.start()
+    time.sleep(4.0)
+    collector.stop()
 
     stats = collector.reader.decoder.stats
     assert stats.packets > 500
     assert stats.errors <= 1  # at most the one chunk cut by joining mid-stream
     assert stats.e1 is True
-    assert stats.lost_packets == 0  # E1 seq without gaps
-    packets = [p for _, p in collector.packets]
-    assert all(len(p.frames) == 2 and p.mavlink is None for p in packets)
+    packets = collector.packets
     seqs = [p.seq for p in packets]
-    assert seqs == list(range(seqs[0], seqs[0] + len(seqs)))
+    assert seqs == list(range(seqs[0], seqs[0] + len(seqs)))  # no packet lost
+    assert packets[-1].drops == packets[0].drops  # no frame dropped on the FC
+    assert all(len(p.frames) == 2 and p.mavlink is None for p in packets)
+    times = [frame.time_us for p in packets for frame in p.frames]
+    period = lockstep_interval(moving_fc.rate_hz, looptime_us) * looptime_us
+    assert {b - a for a, b in pairwise(times)} == {period}
 
-    looptime_us = SITL_GYRO_LOOPTIME_US * denom
-    every = math.floor((1e6 / rate_hz) / looptime_us) + 1
-    lockstep_hz = runs / (t1 - t0) / every
-    window = [p for arrival, p in collector.packets if t0 <= arrival <= t1]
-    drops = window[-1].drops - window[0].drops
-    captured_hz = (2 * len(window) + drops) / (t1 - t0)
-    assert captured_hz == pytest.approx(lockstep_hz, rel=0.05), (runs, every, drops)
+
+def test_msp_is_served_at_the_serial_rate_asked_for(sitl_binary: Path, tmp_path: Path) -> None:
+    """The paper's MSP baseline polls at 1 kHz: with serial_update_rate_hz = 1000 the SERIAL
+    task, which answers MSP, runs at 1 kHz."""
+    with VirtualFcSession(sitl_binary, tmp_path, port_base=free_port_base()) as fc:
+        session = CliSession.open(fc.msp_url)
+        session.set("serial_update_rate_hz", "1000")
+        session.save()
+        fc.fc.wait_back()
+        time.sleep(2.0)
+        session = CliSession.open(fc.msp_url)
+        try:
+            serial_hz = task_rates(session.run("tasks"))["SERIAL"]
+        finally:
+            session.close()
+    assert abs(serial_hz - 1000) <= RATE_TOLERANCE * 1000

@@ -12,7 +12,7 @@ import pytest
 
 from tests.fsp.test_decoder import stream
 from wftool.errors import VerificationFailed
-from wftool.verify.criteria import VIRTUAL_FC, Criteria
+from wftool.verify.criteria import RATE_UNCHECKED, Criteria
 from wftool.verify.session import VerifySession, criteria_for, replay
 
 
@@ -61,12 +61,27 @@ def test_run_judges_what_it_saw_and_the_recording_replays_it(fc_stream, tmp_path
     assert again.verdict.passed
 
 
-def test_criteria_take_the_defaults_or_the_virtual_fcs_allowances() -> None:
+def test_criteria_take_the_defaults_or_the_users_limits() -> None:
     assert criteria_for() == Criteria()
-    virtual = criteria_for(virtual_fc=True, uplink=True)
-    assert (virtual.max_spread_ms, virtual.max_drops_pct) == (
-        VIRTUAL_FC.max_spread_ms,
-        VIRTUAL_FC.max_drops_pct,
-    )
-    assert virtual.uplink and virtual.max_loss_pct == Criteria().max_loss_pct
-    assert criteria_for(virtual_fc=True, max_drops_pct=5.0).max_drops_pct == 5.0
+    mine = criteria_for(uplink=True, max_drops_pct=5.0)
+    assert mine.uplink and mine.max_drops_pct == 5.0
+    assert mine.max_loss_pct == Criteria().max_loss_pct
+
+
+def test_the_rate_is_judged_against_the_expected_rate_never_the_streams_own(
+    fc_stream: tuple[str, list[int]],
+) -> None:
+    url, _ = fc_stream
+    session = VerifySession(url, duration_s=1.5)
+    result = session.run()
+    assert "frame rate" not in [check.name for check in result.verdict.checks]
+    assert result.verdict.notes == (RATE_UNCHECKED,)
+    assert result.summary.source_rate_hz  # the stream's own rate is known, and not used
+
+    expecting = session.result(session.monitor.summary())
+    assert expecting.verdict.notes == (RATE_UNCHECKED,)
+    session.monitor.expected_rate_hz = 10 * result.summary.frame_rate_hz
+    judged = session.result()
+    rate = next(check for check in judged.verdict.checks if check.name == "frame rate")
+    assert not rate.passed and not judged.verdict.passed
+    assert judged.verdict.notes == ()

@@ -1,8 +1,8 @@
 """`wftool verify --stream` end to end against the patched SITL (a real Betaflight).
 
-The virtual FC runs with FSP on UART2 and synthetic motion. SITL is not real time (its loop
-stalls for milliseconds), so these runs pass the virtual FC's limits for interval spread and
-FC-side drops, as `wftool sitl --verify` does; transport loss and rejected chunks must be 0.
+The virtual FC runs with FSP on UART2 and synthetic motion, and is judged as a board is:
+the default limits, the frame rate against what fsp_rate_hz gives at the PID looptime the FC
+reports over MSP (`--fsp-rate` with `--fc`).
 """
 
 from __future__ import annotations
@@ -16,21 +16,25 @@ from pathlib import Path
 import pytest
 
 from tests.conftest import run_cli
+from wftool.sitl.process import free_port_base
 from wftool.sitl.session import Motion, VirtualFcSession
-from wftool.verify.criteria import VIRTUAL_FC
 from wftool.verify.live import LiveOptions, run_live
 from wftool.verify.monitor import StreamMonitor
 
 pytestmark = pytest.mark.slow
 
-SPREAD = str(VIRTUAL_FC.max_spread_ms)
-DROPS = str(VIRTUAL_FC.max_drops_pct)
-
 
 @pytest.fixture
 def fsp_fc(sitl_binary: Path, tmp_path: Path) -> Iterator[VirtualFcSession]:
-    with VirtualFcSession(sitl_binary, tmp_path / "fc", motion=Motion()) as session:
+    with VirtualFcSession(
+        sitl_binary, tmp_path / "fc", motion=Motion(), port_base=free_port_base()
+    ) as session:
         yield session
+
+
+def expected(fc: VirtualFcSession) -> tuple[str, ...]:
+    """Where verify learns the rate to expect: the FC's setting and its MSP port."""
+    return ("--fsp-rate", str(fc.rate_hz), "--fc", fc.msp_url)
 
 
 def verify_json(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, dict, str]:
@@ -44,11 +48,14 @@ def test_stream_passes_with_no_errors_no_loss_and_replays_identically(
     recording = tmp_path / "run.mcap"
     code, live, err = verify_json(
         capsys, "verify", "--stream", "--port", fsp_fc.fsp_url, "--duration", "8",
-        "--max-loss", "0", "--max-spread-ms", SPREAD, "--max-fc-drops", DROPS,
-        "--record", str(recording),
+        "--max-loss", "0", "--max-fc-drops", "0", *expected(fsp_fc), "--record", str(recording),
     )  # fmt: skip
     assert code == 0, err
     assert live["verdict"]["passed"]
+    assert live["expected_rate_hz"] == pytest.approx(fsp_fc.expected_rate_hz)
+    checks = {check["name"]: check for check in live["verdict"]["checks"]}
+    assert checks["frame rate"]["passed"] and checks["FC interval spread"]["passed"]
+    assert live["fc_drops"] == 0
     assert live["rejected"] == {"cobs": 0, "length": 0, "version": 0, "crc": 0}
     assert (live["lost_frames"], live["lost_packets"], live["e1"]) == (0, 0, True)
     assert live["frames"] > 500
@@ -57,9 +64,8 @@ def test_stream_passes_with_no_errors_no_loss_and_replays_identically(
     assert live["clock"]["locked"] and abs(live["clock"]["rate_ppm"]) < 2000
 
     code, replayed, _ = verify_json(
-        capsys, "replay", str(recording), "--max-loss", "0", "--max-spread-ms", SPREAD,
-        "--max-fc-drops", DROPS,
-    )  # fmt: skip
+        capsys, "replay", str(recording), "--max-loss", "0", "--max-fc-drops", "0"
+    )
     assert code == 0
     assert replayed == live
 
@@ -69,7 +75,7 @@ def test_uplink_pattern_comes_back_in_the_stream(
 ) -> None:
     code, summary, err = verify_json(
         capsys, "verify", "--stream", "--port", fsp_fc.fsp_url, "--duration", "6",
-        "--uplink", "--uplink-rate", "50", "--max-spread-ms", SPREAD, "--max-fc-drops", DROPS,
+        "--uplink", "--uplink-rate", "50", *expected(fsp_fc),
     )  # fmt: skip
     assert code == 0, err
     uplink = summary["uplink"]
@@ -86,7 +92,7 @@ def test_stream_without_the_uplink_check_fails_it_when_asked(
     """The verdict can fail: a stricter rate than the FC can give is reported, exit 1."""
     code, summary, err = verify_json(
         capsys, "verify", "--stream", "--port", fsp_fc.fsp_url, "--duration", "3",
-        "--min-rate", "100000", "--max-spread-ms", SPREAD,
+        "--min-rate", "100000",
     )  # fmt: skip
     assert code == 1
     assert err.strip().splitlines()[-1].startswith("error: stream verification failed: frame rate")

@@ -2,9 +2,11 @@
 
 For each `fsp_rate_hz` the patched SITL is started fresh with FSP configured and a real
 verify run (`VerifySession`, with the dashboard rendered four times a second into a
-discarded console) runs for the given time. Figures: frames/s, transport loss, FC-side
-drops and rejections per rate; the CPU share of this process at the first rate (the SITL is
-another process); and the decode latency from a read returning to its frames delivered.
+discarded console) runs for the given time. Figures per rate: frames/s against the frames/s
+the FC should send (from `fsp_rate_hz` and the PID looptime it reports over MSP), transport
+loss, FC-side drops, rejections, and the FC-sample and OBC-arrival intervals (P1/P50/P99).
+At the first rate also the CPU share of this process (the SITL is another process) and the
+decode latency from a read returning to its frames delivered.
 """
 
 from __future__ import annotations
@@ -19,19 +21,23 @@ from pathlib import Path
 from rich.console import Console
 
 from wftool.fsp import StatePacket
+from wftool.sitl.process import free_port_base
 from wftool.sitl.session import VirtualFcSession
 from wftool.verify.dashboard import render
-from wftool.verify.monitor import StreamSummary
-from wftool.verify.session import VerifySession, criteria_for
+from wftool.verify.monitor import IntervalSummary, StreamSummary
+from wftool.verify.session import VerifySession
 
 
 @dataclass(frozen=True)
 class RateFigures:
     rate_hz: int
+    expected_frames_per_s: float
     frames_per_s: float
     lost_frames: int
     fc_drops: int
     errors: int
+    fc_interval: IntervalSummary | None
+    arrival_interval: IntervalSummary | None
 
     @property
     def held(self) -> bool:
@@ -49,9 +55,10 @@ class StreamBenchResult:
     """P50 and P99 from a read returning to its frames delivered, at the first rate."""
 
     @property
-    def highest_held_rate(self) -> int | None:
-        held = [r.rate_hz for r in self.rates if r.held]
-        return max(held) if held else None
+    def highest_held(self) -> RateFigures | None:
+        """The rate with the most frames/s held without loss."""
+        held = [r for r in self.rates if r.held]
+        return max(held, key=lambda r: r.expected_frames_per_s) if held else None
 
 
 def _quantile(values: Sequence[float], q: float) -> float:
@@ -66,10 +73,10 @@ def run_stream_bench(binary: Path, rates: Sequence[int], seconds: float) -> Stre
     screen = Console(file=io.StringIO(), width=100)
     with tempfile.TemporaryDirectory(prefix="wftool-bench-") as scratch:
         for index, rate in enumerate(rates):
-            with VirtualFcSession(binary, Path(scratch) / f"rate-{rate}", rate_hz=rate) as fc:
-                session = VerifySession(
-                    fc.fsp_url, duration_s=seconds, criteria=criteria_for(virtual_fc=True)
-                )
+            workdir = Path(scratch) / f"rate-{rate}"
+            with VirtualFcSession(binary, workdir, rate_hz=rate, port_base=free_port_base()) as fc:
+                expected = fc.expected_rate_hz
+                session = VerifySession(fc.fsp_url, duration_s=seconds, expected_rate_hz=expected)
                 latencies: list[float] = []
 
                 def draw(summary: StreamSummary, session: VerifySession = session) -> None:
@@ -89,10 +96,13 @@ def run_stream_bench(binary: Path, rates: Sequence[int], seconds: float) -> Stre
             figures.append(
                 RateFigures(
                     rate_hz=rate,
+                    expected_frames_per_s=expected,
                     frames_per_s=summary.frame_rate_hz,
                     lost_frames=summary.lost_frames,
                     fc_drops=summary.fc_drops,
                     errors=summary.errors,
+                    fc_interval=summary.fc_interval,
+                    arrival_interval=summary.arrival_interval,
                 )
             )
             if index == 0:

@@ -6,14 +6,16 @@ This is the only place where exceptions become messages and exit codes.
 
 from __future__ import annotations
 
+import signal
 import sys
 
 import click
 from rich.console import Console
+from rich.markup import escape
 
 from wftool import __version__
 from wftool.cli import bench, build, fc, sitl, verify
-from wftool.errors import EXIT_USAGE, WftoolError
+from wftool.errors import EXIT_USAGE, Terminated, WftoolError
 
 err_console = Console(stderr=True, highlight=False)
 
@@ -29,17 +31,32 @@ for _module in (build, fc, verify, sitl, bench):
         cli.add_command(_command)
 
 
+def _terminate(signum: int, _frame: object) -> None:
+    raise Terminated(signum)
+
+
 def main(argv: list[str] | None = None) -> None:
-    """Entry point: run the CLI and map errors to one line and an exit code."""
+    """Entry point: run the CLI and map errors to one line and an exit code.
+
+    SIGTERM and SIGHUP unwind like Ctrl-C, so whatever the command holds (a virtual FC, a
+    recording, an FC in its CLI) is released on the way out.
+    """
+    previous = {sig: signal.signal(sig, _terminate) for sig in (signal.SIGTERM, signal.SIGHUP)}
     try:
         cli.main(args=argv, prog_name="wftool", standalone_mode=False)
     except WftoolError as exc:
-        err_console.print(f"[bold red]error:[/] {exc}", soft_wrap=True)
+        err_console.print(f"[bold red]error:[/] {escape(str(exc))}", soft_wrap=True)
         sys.exit(exc.exit_code)
+    except Terminated as exc:
+        err_console.print(f"terminated ({signal.Signals(exc.signum).name})")
+        sys.exit(128 + exc.signum)
     except click.ClickException as exc:
         exc.show()
         sys.exit(exc.exit_code if exc.exit_code else EXIT_USAGE)
     except (click.Abort, KeyboardInterrupt):
         err_console.print("aborted")
         sys.exit(130)
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
     sys.exit(0)

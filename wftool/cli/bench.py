@@ -13,6 +13,7 @@ from rich.table import Table
 
 from wftool.bench.build import bench_build
 from wftool.cli.build import build_options, options_from, project_from
+from wftool.verify.monitor import IntervalSummary
 
 out = Console(highlight=False, width=None if sys.stdout.isatty() else 200)
 
@@ -112,7 +113,7 @@ def bench_decode(minutes: float, chunk: int, tunnel: bool, repeat: int) -> None:
 @bench_group.command("stream")
 @click.option(
     "--rates",
-    default="1100,2000,3000,4000",
+    default="1100,2000,3000,8000",
     show_default=True,
     help="fsp_rate_hz values to try, comma-separated; the first is the default rate.",
 )
@@ -135,19 +136,35 @@ def bench_stream(rates: str, seconds: float, binary: Path | None, project_dir: P
         raise click.BadParameter(f"expected integers like 1100,2000: {rates!r}") from None
     result = run_stream_bench(binary or build_sitl(project_dir), values, seconds)
     table = Table(title=f"FSP on the virtual FC, {seconds:g} s per rate")
-    for column in ("fsp_rate_hz", "frames/s", "transport loss", "FC drops", "rejected", "held"):
+    columns = ("fsp_rate_hz", "expected frames/s", "frames/s", "ratio", "transport loss",
+               "FC drops", "rejected", "FC interval P1/P50/P99 µs",
+               "OBC arrival P1/P50/P99 µs", "held")  # fmt: skip
+    for column in columns:
         table.add_column(column, justify="right")
     for figures in result.rates:
+        ratio = figures.frames_per_s / figures.expected_frames_per_s
         table.add_row(
-            str(figures.rate_hz), f"{figures.frames_per_s:.1f}", str(figures.lost_frames),
-            str(figures.fc_drops), str(figures.errors), "yes" if figures.held else "no",
+            str(figures.rate_hz), f"{figures.expected_frames_per_s:.1f}",
+            f"{figures.frames_per_s:.1f}", f"{ratio:.4f}", str(figures.lost_frames),
+            str(figures.fc_drops), str(figures.errors), _quantiles(figures.fc_interval),
+            _quantiles(figures.arrival_interval), "yes" if figures.held else "no",
         )  # fmt: skip
     out.print(table)
-    out.print(f"highest rate held with zero loss: {result.highest_held_rate or 'none'}")
+    best = result.highest_held
+    held = (
+        f"fsp_rate_hz {best.rate_hz}, {best.expected_frames_per_s:.0f} frames/s" if best else "none"
+    )
+    out.print(f"highest rate held with zero loss: {held}")
     first = result.rates[0].rate_hz
     out.print(f"verify CPU at fsp_rate_hz {first}: {result.cpu_percent:.1f} % of one core")
     p50, p99 = result.latency_ms
     out.print(f"decode latency, read to frames: P50 {p50:.3f} ms, P99 {p99:.3f} ms")
+
+
+def _quantiles(interval: IntervalSummary | None) -> str:
+    if interval is None:
+        return "–"
+    return f"{interval.p1_us:.0f}/{interval.p50_us:.0f}/{interval.p99_us:.0f}"
 
 
 COMMANDS: list[click.Command] = [bench_group]

@@ -26,6 +26,7 @@ from wftool.firmware import (
 )
 from wftool.firmware.project import PROJECT_ENV, Project, exclusive
 from wftool.firmware.targets import resolve_target
+from wftool.fsp.schedule import RATE_HZ_MAX, RATE_HZ_MIN
 
 # Piped output (CI logs, scripts) gets room for full paths instead of 80 folded columns.
 out = Console(highlight=False, width=None if sys.stdout.isatty() else 200)
@@ -67,7 +68,7 @@ def build_options(function: Callable[..., Any]) -> Callable[..., Any]:
     options = [
         click.option(
             "--fsp-rate",
-            type=click.IntRange(50, 4000),  # the firmware's FSP_RATE_HZ_MIN..MAX
+            type=click.IntRange(RATE_HZ_MIN, RATE_HZ_MAX),
             metavar="HZ",
             help="Default of the firmware's fsp_rate_hz setting (-DFSP_RATE_HZ_DEFAULT).",
         ),

@@ -13,7 +13,7 @@ from wftool.cli.progress import PERCENT, ProgressBars
 from wftool.errors import ProtocolError, WftoolError
 from wftool.fc.backup import DEFAULT_BACKUP_DIR
 from wftool.fc.board import Board, SerialBoard
-from wftool.fc.fsp_setup import DEFAULT_RATE_HZ, fsp_planner
+from wftool.fc.fsp_setup import fsp_planner
 from wftool.fc.msp import MspClient
 from wftool.fc.params import (
     ChangeReport,
@@ -25,6 +25,7 @@ from wftool.fc.params import (
     plan_from_file,
 )
 from wftool.flash import flasher
+from wftool.fsp.schedule import DEFAULT_RATE_HZ, RATE_HZ_MAX, RATE_HZ_MIN
 
 console = Console(highlight=False, soft_wrap=True)
 status = Console(stderr=True, highlight=False, soft_wrap=True)
@@ -120,7 +121,7 @@ def configure() -> None:
 @click.option("--baud", type=click.IntRange(9600), required=True, help="FSP baud rate.")
 @click.option(
     "--rate",
-    type=click.IntRange(1),
+    type=click.IntRange(RATE_HZ_MIN, RATE_HZ_MAX),
     default=DEFAULT_RATE_HZ,
     show_default=True,
     help="Target FSP sample rate (fsp_rate_hz).",

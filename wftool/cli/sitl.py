@@ -10,7 +10,10 @@ import click
 from rich.console import Console
 
 from wftool.cli.verify import criteria_options, run_options, verify_stream
+from wftool.errors import UsageError
 from wftool.fsp import DEFAULT_BAUDRATE
+from wftool.fsp.schedule import DEFAULT_RATE_HZ, RATE_HZ_MAX, RATE_HZ_MIN
+from wftool.sitl.process import DEFAULT_PORT_BASE, SIM_PORT_OFFSET, UART_COUNT
 
 err = Console(stderr=True, highlight=False)
 
@@ -29,8 +32,8 @@ err = Console(stderr=True, highlight=False)
 @click.option(
     "--rate",
     "rate_hz",
-    type=click.IntRange(50, 4000),
-    default=1100,
+    type=click.IntRange(RATE_HZ_MIN, RATE_HZ_MAX),
+    default=DEFAULT_RATE_HZ,
     show_default=True,
     help="fsp_rate_hz to configure.",
 )
@@ -48,6 +51,13 @@ err = Console(stderr=True, highlight=False)
     help="Verify the stream for SECONDS, then stop with the verdict as exit code.",
 )
 @click.option(
+    "--port-base",
+    type=click.IntRange(1024, 65535 - SIM_PORT_OFFSET - UART_COUNT),
+    default=DEFAULT_PORT_BASE,
+    show_default=True,
+    help=f"UARTn on TCP PORT_BASE+n; simulator UDP at PORT_BASE+{SIM_PORT_OFFSET + 1}...",
+)
+@click.option(
     "--project",
     "project_dir",
     type=click.Path(file_okay=False, path_type=Path),
@@ -57,23 +67,31 @@ err = Console(stderr=True, highlight=False)
 @criteria_options
 def sitl(
     binary: Path | None, workdir: Path | None, rate_hz: int, motion: bool,
-    verify_s: float | None, project_dir: Path | None, **options: Any,
+    verify_s: float | None, port_base: int, project_dir: Path | None, **options: Any,
 ) -> None:  # fmt: skip
-    """Run the virtual FC: the patched SITL with FSP on UART2, until Ctrl-C (or --verify)."""
+    """Run the virtual FC: the patched SITL with FSP on UART2, until Ctrl-C (or --verify).
+
+    With --verify it is judged as a board is: the frame rate against what fsp_rate_hz gives at
+    the FC's PID looptime (read over MSP), unless --expected-rate says otherwise.
+    """
     from wftool.sitl.session import Motion, VirtualFcSession
 
+    if verify_s is not None and not verify_s > 0:
+        raise UsageError(f"--verify needs a positive number of seconds, not {verify_s:g}")
     if binary is None:
         binary = build_sitl(project_dir)
     workdir = workdir or Path(tempfile.mkdtemp(prefix="wftool-sitl-"))
     session = VirtualFcSession(
-        binary, workdir, rate_hz=rate_hz, motion=Motion() if motion else None
+        binary, workdir, rate_hz=rate_hz, motion=Motion() if motion else None, port_base=port_base
     )
     err.print(f"starting the virtual FC in {workdir} …")
     with session:
         err.print(f"MSP/CLI  [bold]{session.msp_url}[/]")
         err.print(f"FSP      [bold]{session.fsp_url}[/]  (fsp_rate_hz {rate_hz})")
         if verify_s is not None:
-            verify_stream(session.fsp_url, DEFAULT_BAUDRATE, verify_s, virtual_fc=True, **options)
+            if options["expected_rate"] is None:
+                options["expected_rate"] = session.expected_rate_hz
+            verify_stream(session.fsp_url, DEFAULT_BAUDRATE, verify_s, **options)
             return
         err.print("running; Ctrl-C stops it")
         try:

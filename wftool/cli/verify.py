@@ -14,9 +14,16 @@ from rich.live import Live
 
 from wftool.errors import UsageError
 from wftool.fsp import DEFAULT_BAUDRATE
-from wftool.verify.criteria import VIRTUAL_FC, Criteria
+from wftool.fsp.schedule import RATE_HZ_MAX, RATE_HZ_MIN
+from wftool.verify.criteria import Criteria
 from wftool.verify.dashboard import render
-from wftool.verify.session import VerifyResult, VerifySession, criteria_for, replay
+from wftool.verify.session import (
+    VerifyResult,
+    VerifySession,
+    criteria_for,
+    fc_frame_rate_hz,
+    replay,
+)
 
 
 def _options(*options: Callable) -> Callable:
@@ -31,14 +38,12 @@ def _options(*options: Callable) -> Callable:
 criteria_options = _options(
     click.option("--expected-rate", type=float, help="Frame rate the FC should stream (Hz)."),
     click.option("--min-rate", type=float, help="Minimum frame rate [95 % of expected]."),
-    click.option("--max-spread-ms", type=float,
-                 help="Max FC-interval P99−P1 "
-                 f"[half a period; virtual FC: {VIRTUAL_FC.max_spread_ms:g}]."),
+    click.option("--max-spread-ms", type=float, help="Max FC-interval P99−P1 [half a period]."),
     click.option("--max-loss", type=float, default=Criteria.max_loss_pct, show_default=True,
                  help="Max transport loss, % of frames."),
     click.option("--max-fc-drops", type=float,
                  help="Max frames the FC dropped (queue full), % of frames "
-                 f"[{Criteria.max_drops_pct:g}; virtual FC: {VIRTUAL_FC.max_drops_pct:g}]."),
+                 f"[{Criteria.max_drops_pct:g}]."),
     click.option("--max-errors", type=int, default=Criteria.max_errors, show_default=True,
                  help="Max rejected chunks (COBS, length, version, CRC)."),
     click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout."),
@@ -55,11 +60,31 @@ run_options = _options(
 )  # fmt: skip
 
 
-def criteria_from(uplink: bool, virtual_fc: bool = False, **options: Any) -> Criteria:
+expected_rate_options = _options(
+    click.option("--fsp-rate", type=click.IntRange(RATE_HZ_MIN, RATE_HZ_MAX), metavar="HZ",
+                 help="The FC's fsp_rate_hz: with --fc, the expected rate follows."),
+    click.option("--fc", "fc_url", metavar="URL",
+                 help="The FC's MSP port, to read its PID looptime (with --fsp-rate)."),
+)  # fmt: skip
+
+
+def expected_rate_from(
+    expected_rate: float | None, fsp_rate: int | None, fc_url: str | None
+) -> float | None:
+    """The expected frame rate: given, or from `fsp_rate_hz` and the FC's PID looptime."""
+    if fsp_rate is None and fc_url is None:
+        return expected_rate
+    if fsp_rate is None or fc_url is None:
+        raise UsageError("--fsp-rate and --fc go together: the rate, and where to ask the FC")
+    if expected_rate is not None:
+        raise UsageError("give --expected-rate or --fsp-rate with --fc, not both")
+    return fc_frame_rate_hz(fc_url, fsp_rate)
+
+
+def criteria_from(uplink: bool, **options: Any) -> Criteria:
     """The criteria the `criteria_options` ask for."""
     return criteria_for(
         uplink=uplink,
-        virtual_fc=virtual_fc,
         min_rate_hz=options["min_rate"],
         max_spread_ms=options["max_spread_ms"],
         max_loss_pct=options["max_loss"],
@@ -86,7 +111,6 @@ def verify_stream(
     csv_path: Path | None,
     expected_rate: float | None,
     as_json: bool,
-    virtual_fc: bool = False,
     **criteria_values: Any,
 ) -> None:
     """The live dashboard until the duration is up (or Ctrl-C), then the verdict."""
@@ -94,7 +118,7 @@ def verify_stream(
         url,
         baud,
         duration,
-        criteria=criteria_from(uplink, virtual_fc, **criteria_values),
+        criteria=criteria_from(uplink, **criteria_values),
         expected_rate_hz=expected_rate,
         uplink_rate_hz=uplink_rate if uplink else None,
         record_path=record_path,
@@ -125,14 +149,21 @@ def verify_stream(
 @click.option("--baud", type=int, default=DEFAULT_BAUDRATE, show_default=True)
 @click.option("--duration", type=float, help="Seconds to run [until Ctrl-C].")
 @run_options
+@expected_rate_options
 @criteria_options
-def verify(stream: bool, url: str, baud: int, duration: float | None, **options: Any) -> None:
+def verify(
+    stream: bool, url: str, baud: int, duration: float | None,
+    fsp_rate: int | None, fc_url: str | None, **options: Any,
+) -> None:  # fmt: skip
     """Live dashboard of an FSP stream, then a verdict: exit 0 pass, 1 fail, 2 cannot run.
 
-    Without --duration it runs until Ctrl-C, then judges what it saw.
+    Without --duration it runs until Ctrl-C, then judges what it saw. The frame rate is
+    judged against --expected-rate, or the rate --fsp-rate gives at the PID looptime the FC
+    reports on --fc.
     """
     if not stream:
         raise UsageError("nothing to verify: pass --stream")
+    options["expected_rate"] = expected_rate_from(options["expected_rate"], fsp_rate, fc_url)
     verify_stream(url, baud, duration, **options)
 
 

@@ -19,10 +19,10 @@ from wftool.errors import CliCommandError, ParameterError
 from wftool.fc.cli_session import CliSession
 from wftool.fc.msp import FEATURE_RX_MSP, RECEIVER_FEATURES
 from wftool.fc.params import Command, FeatureChange, Plan, Planner, set_command
+from wftool.fsp.schedule import DEFAULT_RATE_HZ
 
 FSP_FUNCTION = 1 << 19
 MSP_FUNCTION = 1 << 0
-DEFAULT_RATE_HZ = 1100
 ACC_RPM_FILTER_DEFAULTS = {
     "acc_rpm_filter_harmonics": "1",
     "acc_rpm_filter_min_hz": "60",

@@ -8,6 +8,7 @@ Contract: spec/fsp.md. Where things live:
 - `decoder`  — `StateDecoder`: bytes in, timed packets out; loss, drops, resets counted
 - `encoder`  — wire bytes for both directions; `CommandSender` for the uplink
 - `clock`    — u32 unwrapping and OBC clock alignment (`KalmanClockEstimator`)
+- `schedule` — when the FC captures: `fsp_rate_hz`, the lockstep interval, the frame rate
 - `reader`   — `FspPort` (bytes in, commands out) over any pyserial URL; `FspReader` decodes
 - `mavlink`  — messages from the tunnel variant (needs pymavlink)
 """

@@ -2,19 +2,23 @@
 
 SITL facts this relies on (Betaflight 2025.12, `src/platform/SIMULATOR`):
 
-- UARTn is a TCP server on 127.0.0.1:5760+n, but only for UARTs that have a serial function
-  configured (stock: UART1 = MSP only). Each accepts ONE client; a connection arriving
-  before the previous one's close was processed is dropped at once. So a readiness probe
-  must wait until SITL logs both `[NEW]UART1` (accepted) and `[CLS]UART1` (released).
-- Now and then (more often on a loaded machine) UART1 binds but never accepts: the TCP
-  thread's `dyad_update()` can destroy the listening stream while the main thread is still
-  setting it up (dyad is not thread-safe). Such a start is detected by the probe and retried.
+- UARTn is a TCP server on 127.0.0.1:PORT_BASE+n (patch 0004's `--port-base`, default
+  5760), but only for UARTs that have a serial function configured (stock: UART1 = MSP
+  only). Each accepts ONE client; a connection arriving before the previous one's close was
+  processed is dropped at once. So a readiness probe must wait until SITL logs both
+  `[NEW]UART1` (accepted) and `[CLS]UART1` (released).
+- The simulator's UDP ports (state in, RC in, PWM out) are SIM_BASE+1..+4 (`--sim-port-base`);
+  wftool puts them at PORT_BASE + 3240, which keeps upstream's 9001–9004 for the default
+  base. So several virtual FCs run side by side, each with its own port base.
+- `--exit-with-parent` ends SITL when the process that started it ends (PR_SET_PDEATHSIG,
+  armed for the *thread* that starts it: start SITL from a thread that outlives it).
+- Its clock is patch 0003's lockstep clock: FC time in exact gyro periods, paced to the host's
+  CLOCK_MONOTONIC; every (re)anchoring is logged as `[SITL] lockstep anchor: ...`.
 - Now and then (a few starts in a hundred) SITL boots with its gyro task never scheduled:
   MSP and the CLI answer, but no PID loop runs (MSP_STATUS cycle time 0). Such a start is
-  detected and retried too, as a watchdog would reset a hung board.
+  detected and retried, as a watchdog would reset a hung board.
 - Every reset (CLI `save`/`exit`, MSP reboot, reboot to bootloader) ends the process with
   exit status 0; the configuration survives in `eeprom.bin` in the working directory.
-- It also binds UDP 9001–9004, so two SITLs need separate network namespaces.
 """
 
 from __future__ import annotations
@@ -26,19 +30,50 @@ import subprocess
 import time
 from pathlib import Path
 
-from wftool.errors import SitlError
+from wftool.errors import PortInUseError, SitlError
 from wftool.fc.msp import MspClient
 
 LOOPBACK = "127.0.0.1"
-TCP_BASE_PORT = 5760
+DEFAULT_PORT_BASE = 5760
+SIM_PORT_OFFSET = 3240
+"""The simulator's UDP port base, relative to the TCP port base (5760 -> upstream's 9000)."""
+SIM_STATE_PORT = 3
+"""SITL's simulator state input is UDP sim base + 3 (9003 by default)."""
+UART_COUNT = 8
 START_ATTEMPTS = 3
 ACCEPT_TIMEOUT_S = 3.0
 LOOP_TIMEOUT_S = 3.0
 
 
-def uart_url(uart: int) -> str:
+def uart_url(uart: int, port_base: int = DEFAULT_PORT_BASE) -> str:
     """The pyserial URL of SITL's UART number `uart` (1-based)."""
-    return f"socket://{LOOPBACK}:{TCP_BASE_PORT + uart}"
+    return f"socket://{LOOPBACK}:{port_base + uart}"
+
+
+def ports_in_use(port_base: int) -> list[str]:
+    """Which of a virtual FC's ports (TCP per UART, UDP inputs) another program holds."""
+    taken = []
+    tcp = [(socket.SOCK_STREAM, port_base + uart) for uart in range(1, UART_COUNT + 1)]
+    udp = [(socket.SOCK_DGRAM, port_base + SIM_PORT_OFFSET + n) for n in (3, 4)]
+    for kind, port in tcp + udp:
+        with socket.socket(socket.AF_INET, kind) as probe:
+            if kind == socket.SOCK_STREAM:  # as SITL listens: a closed connection's TIME_WAIT
+                probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # does not count
+            try:
+                probe.bind((LOOPBACK, port))
+            except OSError:
+                taken.append(f"{'TCP' if kind == socket.SOCK_STREAM else 'UDP'} {port}")
+    return taken
+
+
+def free_port_base(start: int = 20000, stop: int = 60000, step: int = 50) -> int:
+    """A port base none of whose ports is in use now, from a pseudo-random start (so that
+    test runs side by side rarely even probe the same one)."""
+    first = start + (os.getpid() * 7919 % ((stop - start) // step)) * step
+    for base in [*range(first, stop, step), *range(start, first, step)]:
+        if not ports_in_use(base):
+            return base
+    raise SitlError(f"no free port base between {start} and {stop}")
 
 
 class VirtualFC:
@@ -47,11 +82,17 @@ class VirtualFC:
     Use as a context manager, or call `start()`/`stop()`. `url` is UART1 (MSP and CLI).
     """
 
-    url = uart_url(1)
-
-    def __init__(self, binary: Path, workdir: Path, *, ready_timeout: float = 20.0) -> None:
+    def __init__(
+        self,
+        binary: Path,
+        workdir: Path,
+        *,
+        port_base: int = DEFAULT_PORT_BASE,
+        ready_timeout: float = 20.0,
+    ) -> None:
         self.binary = Path(binary).resolve()
         self.workdir = Path(workdir)
+        self.port_base = port_base
         self.ready_timeout = ready_timeout
         self.log_path = self.workdir / "sitl.log"
         self.starts = 0
@@ -59,9 +100,17 @@ class VirtualFC:
         self._process: subprocess.Popen[bytes] | None = None
         self._start_offset = 0
 
-    @staticmethod
-    def uart_url(uart: int) -> str:
-        return uart_url(uart)
+    def uart_url(self, uart: int) -> str:
+        return uart_url(uart, self.port_base)
+
+    @property
+    def url(self) -> str:
+        return self.uart_url(1)
+
+    @property
+    def sim_state_port(self) -> int:
+        """The UDP port of SITL's simulator state input (motion)."""
+        return self.port_base + SIM_PORT_OFFSET + SIM_STATE_PORT
 
     @property
     def running(self) -> bool:
@@ -71,23 +120,40 @@ class VirtualFC:
         """Start the process; return once UART1 has accepted (and released) a connection."""
         if self.running:
             raise SitlError("SITL is already running")
+        if taken := ports_in_use(self.port_base):
+            raise PortInUseError(
+                f"{taken[0]} is in use: another virtual FC (or program) holds it; "
+                f"choose another port base (--port-base)"
+            )
         self.workdir.mkdir(parents=True, exist_ok=True)
         problem = ""
         for _attempt in range(START_ATTEMPTS):
             self._spawn()
-            problem = self._uart1_problem() or self._loop_problem()
+            try:
+                problem = self._uart1_problem() or self._loop_problem()
+            except BaseException:
+                self.stop()
+                raise
             if not problem:
                 self.starts += 1
                 return
             self.stop()
         raise SitlError(f"{problem} ({START_ATTEMPTS} attempts; see {self.log_path})")
 
+    def _argv(self) -> list[str]:
+        return [
+            str(self.binary),
+            f"--port-base={self.port_base}",
+            f"--sim-port-base={self.port_base + SIM_PORT_OFFSET}",
+            "--exit-with-parent",
+        ]
+
     def _spawn(self) -> None:
         self._start_offset = self.log_path.stat().st_size if self.log_path.exists() else 0
         with self.log_path.open("ab") as log:
             try:
                 self._process = subprocess.Popen(
-                    [str(self.binary)],
+                    self._argv(),
                     cwd=self.workdir,
                     stdin=subprocess.DEVNULL,
                     stdout=log,
@@ -99,14 +165,15 @@ class VirtualFC:
 
     def _uart1_problem(self) -> str:
         """Why UART1 is not usable yet, or "" once a probe connection came and went."""
-        listening = self._await_log(b"bind port 5761 for UART1", self.ready_timeout)
+        port = self.port_base + 1
+        listening = self._await_log(f"bind port {port} for UART1".encode(), self.ready_timeout)
         if listening is None:
             return f"SITL did not open UART1 within {self.ready_timeout:.0f} s"
-        if b"bind port 5761 for UART1 failed" in listening:
-            return f"SITL could not listen on TCP {TCP_BASE_PORT + 1}: another SITL here?"
+        if f"bind port {port} for UART1 failed".encode() in listening:
+            raise PortInUseError(f"TCP {port} is in use: SITL could not listen on it")
         offset = self.log_path.stat().st_size
         try:
-            with socket.create_connection((LOOPBACK, TCP_BASE_PORT + 1), timeout=1):
+            with socket.create_connection((LOOPBACK, port), timeout=1):
                 accepted = self._await_log(b"[NEW]UART1", ACCEPT_TIMEOUT_S, offset)
         except OSError as exc:
             return f"SITL's UART1 refused a connection: {exc.strerror or exc}"

@@ -17,14 +17,14 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from wftool.fc.fsp_setup import DEFAULT_RATE_HZ, fsp_planner
+from wftool.fc.fsp_setup import fsp_planner
+from wftool.fc.msp import MspClient
 from wftool.fc.params import apply_plan
 from wftool.fsp import DEFAULT_BAUDRATE
-from wftool.sitl.process import LOOPBACK, VirtualFC, uart_url
+from wftool.fsp.schedule import DEFAULT_RATE_HZ, frame_rate_hz
+from wftool.sitl.process import DEFAULT_PORT_BASE, LOOPBACK, VirtualFC
 
 FSP_UART = 2
-SIM_STATE_PORT = 9003
-"""SITL's simulator input: one `fdm_packet` (18 doubles) per UDP datagram."""
 GRAVITY = 9.80665
 
 
@@ -90,8 +90,10 @@ class MotionFeeder:
 
     SIM_STEP_S = 0.025
 
-    def __init__(self, motion: Motion, rate_hz: float = 1.0 / SIM_STEP_S) -> None:
+    def __init__(self, motion: Motion, port: int, rate_hz: float = 1.0 / SIM_STEP_S) -> None:
+        """`port`: SITL's simulator input, one `fdm_packet` (18 doubles) per UDP datagram."""
         self._motion = motion
+        self._port = port
         self._period = 1.0 / rate_hz
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="sitl-motion", daemon=True)
@@ -110,7 +112,7 @@ class MotionFeeder:
             sent = 0
             while not self._stop.is_set():
                 state = self._motion.state(time.monotonic() - start, sent * self.SIM_STEP_S)
-                sock.sendto(state, (LOOPBACK, SIM_STATE_PORT))
+                sock.sendto(state, (LOOPBACK, self._port))
                 sent += 1
                 next_send += self._period
                 self._stop.wait(max(0.0, next_send - time.monotonic()))
@@ -127,12 +129,19 @@ class VirtualFcSession:
         baud: int = DEFAULT_BAUDRATE,
         rate_hz: int = DEFAULT_RATE_HZ,
         motion: Motion | None = None,
+        port_base: int = DEFAULT_PORT_BASE,
     ) -> None:
-        self.fc = VirtualFC(binary, workdir)
+        self.fc = VirtualFC(binary, workdir, port_base=port_base)
         self.workdir = workdir
         self._baud = baud
-        self._rate_hz = rate_hz
-        self._feeder = MotionFeeder(motion) if motion is not None else None
+        self.rate_hz = rate_hz
+        self._feeder = MotionFeeder(motion, self.fc.sim_state_port) if motion else None
+
+    @property
+    def expected_rate_hz(self) -> float:
+        """The frame rate this FC streams: its `fsp_rate_hz` and PID looptime (over MSP)."""
+        with MspClient.open(self.msp_url) as msp:
+            return frame_rate_hz(self.rate_hz, msp.pid_cycle_us())
 
     @property
     def msp_url(self) -> str:
@@ -140,13 +149,13 @@ class VirtualFcSession:
 
     @property
     def fsp_url(self) -> str:
-        return uart_url(FSP_UART)
+        return self.fc.uart_url(FSP_UART)
 
     def start(self) -> VirtualFcSession:
         self.fc.start()
         try:
             apply_plan(
-                self.fc, fsp_planner(FSP_UART, self._baud, self._rate_hz), self.workdir / "backups"
+                self.fc, fsp_planner(FSP_UART, self._baud, self.rate_hz), self.workdir / "backups"
             )
             if self._feeder is not None:
                 self._feeder.start()

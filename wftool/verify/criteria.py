@@ -7,9 +7,13 @@ from dataclasses import dataclass
 from wftool.verify.monitor import StreamSummary
 
 RATE_TOLERANCE = 0.05
-"""Default minimum frame rate: within 5 % of the expected (or FC-measured) rate."""
+"""Default minimum frame rate: within 5 % of the expected rate."""
 SPREAD_FRACTION = 0.5
-"""Default maximum P99 − P1 of the FC sample interval: half a nominal period."""
+"""Default maximum P99 − P1 of the FC sample interval: half a nominal period (the expected
+one, else the FC's own mean interval)."""
+RATE_UNCHECKED = "frame rate not checked: the expected rate is unknown"
+"""A stream's rate is judged against what the FC was configured to send, never against
+itself: without it, the verdict says so."""
 MIN_UPLINK_ECHOED = 0.9
 
 
@@ -23,14 +27,6 @@ class Criteria:
     """FC-side drops (frames the FC's queue had no room for), % of frames."""
     max_errors: int = 0
     uplink: bool = False
-
-
-VIRTUAL_FC = Criteria(max_spread_ms=50.0, max_drops_pct=1.0)
-"""The virtual FC's allowances, where its limits differ from the defaults (the one place).
-
-SITL is not real time: its loop sleeps between iterations and, on a shared or virtual
-machine, stalls for tens of ms, long enough for the FC's 4-frame queue to overflow now and
-then. On hardware the defaults apply."""
 
 
 @dataclass(frozen=True)
@@ -54,6 +50,8 @@ class Check:
 class Verdict:
     passed: bool
     checks: tuple[Check, ...]
+    notes: tuple[str, ...] = ()
+    """What the verdict could not judge."""
 
     def as_json(self) -> dict:
         return {
@@ -62,24 +60,28 @@ class Verdict:
                 {"name": c.name, "value": c.value, "limit": c.limit, "passed": c.passed}
                 for c in self.checks
             ],
+            "notes": list(self.notes),
         }
 
 
 def judge(summary: StreamSummary, criteria: Criteria) -> Verdict:
     """Every check the criteria ask for, against the summary."""
     checks = [Check("frames received", summary.frames, 1, summary.frames >= 1, at_least=True)]
-    reference = summary.expected_rate_hz or summary.source_rate_hz
+    notes = []
     min_rate = criteria.min_rate_hz
-    if min_rate is None and reference:
-        min_rate = (1.0 - RATE_TOLERANCE) * reference
+    if min_rate is None and summary.expected_rate_hz:
+        min_rate = (1.0 - RATE_TOLERANCE) * summary.expected_rate_hz
     if min_rate is not None:
         rate = round(summary.frame_rate_hz, 1)
         checks.append(
             Check("frame rate", rate, round(min_rate, 1), rate >= min_rate, " Hz", at_least=True)
         )
+    else:
+        notes.append(RATE_UNCHECKED)
     max_spread = criteria.max_spread_ms
-    if max_spread is None and reference:
-        max_spread = SPREAD_FRACTION * 1e3 / reference
+    period_reference = summary.expected_rate_hz or summary.source_rate_hz
+    if max_spread is None and period_reference:
+        max_spread = SPREAD_FRACTION * 1e3 / period_reference
     if max_spread is not None and summary.fc_interval is not None:
         spread = round(summary.fc_interval.spread_us / 1e3, 3)
         checks.append(
@@ -107,4 +109,4 @@ def judge(summary: StreamSummary, criteria: Criteria) -> Verdict:
         echoed = round(uplink.echoed_fraction, 3) if uplink is not None else 0.0
         passed = uplink is not None and uplink.steps_echoed > 0 and echoed >= MIN_UPLINK_ECHOED
         checks.append(Check("uplink echoed", echoed, MIN_UPLINK_ECHOED, passed, at_least=True))
-    return Verdict(all(c.passed for c in checks), tuple(checks))
+    return Verdict(all(c.passed for c in checks), tuple(checks), tuple(notes))

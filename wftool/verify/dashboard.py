@@ -152,6 +152,8 @@ def _verdict(verdict: Verdict) -> Text:
         mark, style = ("✓", "green") if check.passed else ("✗", "red")
         text.append(f"\n {mark} ", style=style)
         text.append(check.describe())
+    for note in verdict.notes:
+        text.append(f"\n - {note}", style="yellow")
     return text
 
 

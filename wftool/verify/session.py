@@ -1,7 +1,7 @@
 """The verify API: judge an FSP stream, live or recorded; the CLI only renders what it returns.
 
     session = VerifySession("socket://127.0.0.1:5762", duration_s=10,
-                            criteria=criteria_for(virtual_fc=True))
+                            expected_rate_hz=1000.0)
     result = session.run()
     print(result.verdict.passed, result.summary.frames)
     result.check()   # raises VerificationFailed naming the failed checks
@@ -20,27 +20,35 @@ from pathlib import Path
 from typing import Any
 
 from wftool.errors import VerificationFailed
+from wftool.fc.msp import MspClient
 from wftool.fsp import DEFAULT_BAUDRATE, SensorFrame, StatePacket
-from wftool.verify.criteria import VIRTUAL_FC, Criteria, Verdict, judge
+from wftool.fsp.schedule import frame_rate_hz
+from wftool.verify.criteria import Criteria, Verdict, judge
 from wftool.verify.live import LiveOptions, run_live
 from wftool.verify.monitor import StreamMonitor, StreamSummary
 from wftool.verify.recording import Recorder, replay_recording, run_metadata
 from wftool.verify.uplink import UplinkTracker
 
 
+def fc_frame_rate_hz(msp_url: str, fsp_rate_hz: float) -> float:
+    """The frame rate an FC configured with `fsp_rate_hz` streams: from its PID looptime,
+    asked over MSP on `msp_url` (its MSP port, not the FSP port)."""
+    with MspClient.open(msp_url) as msp:
+        return frame_rate_hz(fsp_rate_hz, msp.pid_cycle_us())
+
+
 def criteria_for(
     *,
     uplink: bool = False,
-    virtual_fc: bool = False,
     min_rate_hz: float | None = None,
     max_spread_ms: float | None = None,
     max_loss_pct: float | None = None,
     max_drops_pct: float | None = None,
     max_errors: int | None = None,
 ) -> Criteria:
-    """The criteria for a user's limits: a limit left at None takes the default, on the
-    virtual FC its allowances (`wftool.verify.criteria.VIRTUAL_FC`)."""
-    defaults = VIRTUAL_FC if virtual_fc else Criteria()
+    """The criteria for a user's limits: a limit left at None takes the default. A board and
+    the virtual FC are judged alike."""
+    defaults = Criteria()
 
     def pick(value: Any, default: Any) -> Any:
         return default if value is None else value
