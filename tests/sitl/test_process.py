@@ -141,6 +141,8 @@ def wftool_sitl(sitl_binary: Path, tmp_path: Path) -> Iterator[tuple[subprocess.
         [sys.executable, "-m", "wftool", "sitl", "--binary", str(sitl_binary),
          "--workdir", str(tmp_path), "--port-base", str(base), "--no-motion"],
         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+        # as from a terminal: a shell's background job (CI) would start it with SIGINT ignored
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )  # fmt: skip
     try:
         assert process.stderr is not None
