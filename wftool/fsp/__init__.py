@@ -7,12 +7,20 @@ Contract: spec/fsp.md. Where things live:
 - `crc`      — the table-driven CRC-8
 - `decoder`  — `StateDecoder`: bytes in, timed packets out; loss, drops, resets counted
 - `encoder`  — wire bytes for both directions; `CommandSender` for the uplink
-- `clock`    — u32 unwrapping and OBC clock alignment (`KalmanClockEstimator`)
+- `clock`    — u32 unwrapping and OBC clock alignment (`make_estimator`: envelope, kalman)
 - `reader`   — `FspReader` over any pyserial URL
 - `mavlink`  — messages from the tunnel variant (needs pymavlink)
 """
 
-from wftool.fsp.clock import ClockEstimator, ClockState, FcClock, KalmanClockEstimator
+from wftool.fsp.clock import (
+    ESTIMATORS,
+    ClockEstimator,
+    ClockState,
+    EnvelopeClockEstimator,
+    FcClock,
+    KalmanClockEstimator,
+    make_estimator,
+)
 from wftool.fsp.decoder import CommandDecoder, StateDecoder, StreamStats
 from wftool.fsp.encoder import CommandSender, encode_command, encode_state
 from wftool.fsp.framing import Rejection
@@ -20,11 +28,13 @@ from wftool.fsp.packets import CommandPacket, SensorFrame, StatePacket
 from wftool.fsp.reader import FspReader
 
 __all__ = [
+    "ESTIMATORS",
     "ClockEstimator",
     "ClockState",
     "CommandDecoder",
     "CommandPacket",
     "CommandSender",
+    "EnvelopeClockEstimator",
     "FcClock",
     "FspReader",
     "KalmanClockEstimator",
@@ -35,4 +45,5 @@ __all__ = [
     "StreamStats",
     "encode_command",
     "encode_state",
+    "make_estimator",
 ]
