@@ -29,7 +29,8 @@ def test_dashboard_shows_rates_intervals_values_and_verdict():
     assert fc_row.split("│")[1].split()[2:7] == ["954.9", "953", "953", "953", "0"]
     assert "loss 4 frames (0.200 %)" in text
     assert "E1 on" in text
-    assert "locked" in text and "ppm" in text
+    assert "clock envelope acquiring" in text  # the envelope locks after 4 s of data
+    assert "ppm" in text and "steps 0" in text
     assert "1500  1500  1500  1300  1000  2000" not in text  # blank frames carry zeros
     assert "0  0  0  0  0  0" in text
     assert "FAIL" in text and "✗ transport loss: 0.2 % (limit ≤ 0.1 %)" in text

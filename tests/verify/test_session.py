@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import socket
 import threading
 import time
@@ -10,8 +11,9 @@ from pathlib import Path
 
 import pytest
 
+from tests.conftest import run_cli
 from tests.fsp.test_decoder import stream
-from wftool.errors import VerificationFailed
+from wftool.errors import UsageError, VerificationFailed
 from wftool.verify.criteria import RATE_UNCHECKED, Criteria
 from wftool.verify.session import VerifySession, criteria_for, replay
 
@@ -85,3 +87,32 @@ def test_the_rate_is_judged_against_the_expected_rate_never_the_streams_own(
     rate = next(check for check in judged.verdict.checks if check.name == "frame rate")
     assert not rate.passed and not judged.verdict.passed
     assert judged.verdict.notes == ()
+
+
+def test_the_clock_estimator_is_chosen_by_name_recorded_and_replayed(
+    fc_stream: tuple[str, list[int]], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    url, _ = fc_stream
+    recording = tmp_path / "run.mcap"
+    session = VerifySession(url, duration_s=1.5, record_path=recording, clock="kalman")
+    result = session.run()
+    assert result.summary.clock_estimator == "kalman"
+    assert result.summary.clock is not None and result.summary.clock.locked
+
+    again = replay(recording)  # the recorded run's estimator
+    assert again.summary == result.summary
+    other = replay(recording, clock="envelope")
+    assert other.summary.clock_estimator == "envelope"
+    assert other.summary.clock != result.summary.clock
+    # Not locked after 1.5 s: its lock time is NaN in Python, null in JSON.
+    assert other.summary.clock is not None and not other.summary.clock.locked
+    assert json.loads(json.dumps(other.as_json(), allow_nan=False))["clock"]["lock_time_s"] is None
+
+    code, out, _ = run_cli(capsys, "replay", str(recording), "--clock", "envelope", "--json")
+    assert json.loads(out)["clock_estimator"] == "envelope"
+    assert code == 1  # the transport loss, as above
+
+
+def test_an_unknown_clock_estimator_is_refused_before_the_run() -> None:
+    with pytest.raises(UsageError, match="unknown clock estimator 'best'"):
+        VerifySession("socket://127.0.0.1:1", duration_s=1.0, clock="best")

@@ -167,4 +167,58 @@ def _quantiles(interval: IntervalSummary | None) -> str:
     return f"{interval.p1_us:.0f}/{interval.p50_us:.0f}/{interval.p99_us:.0f}"
 
 
+@bench_group.command("clock")
+@click.option("--seconds", default=300.0, show_default=True, help="Length of each simulated run.")
+@click.option(
+    "--seeds", type=click.IntRange(1), default=3, show_default=True, help="Runs per model."
+)
+@click.option(
+    "--drift", default=1.0, show_default=True, help="Drift of the FC's rate, ppm per minute."
+)
+@click.option(
+    "--repeat",
+    type=click.IntRange(1),
+    default=1,
+    show_default=True,
+    help="Timed passes per run for observations/s; the fastest counts.",
+)
+def bench_clock(seconds: float, seeds: int, drift: float, repeat: int) -> None:
+    """Clock estimators on a simulated link with known truth: error, lock time, speed.
+
+    Errors are over each packet's OBC time right after it arrived, once locked. "envelope"
+    is against the true capture instant + the minimum delay (what one-way timing can
+    identify); "absolute" is against the true capture instant (includes that delay).
+    """
+    from wftool.bench.clock import GOAL_RATIO, GOAL_RMS_S, MIN_DELAY_S, REFERENCE, run_clock_bench
+    from wftool.fsp.clock import ESTIMATORS
+
+    result = run_clock_bench(ESTIMATORS, seeds=range(1, seeds + 1), seconds=seconds,
+                             drift_ppm_per_min=drift, repeat=repeat)  # fmt: skip
+    table = Table(
+        title=f"clock estimators, {seconds:g} s runs × {seeds} seeds (worst seed shown); "
+        f"skew ±100 ppm drifting {drift:g} ppm/min, d_min {MIN_DELAY_S * 1e3:g} ms"
+    )
+    for column in (
+        "model", "estimator", "RMS µs", "P99 µs", f"× vs {REFERENCE}",
+        "abs RMS µs", "abs P99 µs", "lock s", "obs/s",
+    ):  # fmt: skip
+        table.add_column(column, justify="left" if column in ("model", "estimator") else "right")
+    for summary in result.summaries:
+        is_reference = summary.estimator == REFERENCE
+        table.add_row(
+            summary.model, summary.estimator,
+            f"{summary.envelope_rms_s * 1e6:,.1f}", f"{summary.envelope_p99_s * 1e6:,.1f}",
+            "" if is_reference else f"{result.rms_ratio(summary):,.0f}",
+            f"{summary.absolute_rms_s * 1e6:,.1f}", f"{summary.absolute_p99_s * 1e6:,.1f}",
+            f"{summary.lock_time_s:.2f}", f"{summary.observations_per_s:,.0f}",
+        )  # fmt: skip
+    out.print(table)
+    for name in ESTIMATORS:
+        if name != REFERENCE:
+            out.print(f"{name}: {result.speed_ratio(name):.2f}x the observations/s of {REFERENCE}")
+    misses = ", ".join(f"{s.model} ({s.estimator})" for s in result.goal_misses())
+    goal = f"RMS <= {GOAL_RMS_S * 1e6:g} µs and >= {GOAL_RATIO:g}x better than {REFERENCE}"
+    out.print(f"goal ({goal}): " + (f"missed on {misses}" if misses else "met on every model"))
+
+
 COMMANDS: list[click.Command] = [bench_group]

@@ -13,7 +13,7 @@ from rich.console import Console
 from rich.live import Live
 
 from wftool.errors import UsageError
-from wftool.fsp import DEFAULT_BAUDRATE
+from wftool.fsp import DEFAULT_BAUDRATE, ESTIMATORS
 from wftool.fsp.schedule import RATE_HZ_MAX, RATE_HZ_MIN
 from wftool.verify.criteria import Criteria
 from wftool.verify.dashboard import render
@@ -47,6 +47,9 @@ criteria_options = _options(
     click.option("--max-errors", type=int, default=Criteria.max_errors, show_default=True,
                  help="Max rejected chunks (COBS, length, version, CRC)."),
     click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout."),
+    click.option("--clock", type=click.Choice(ESTIMATORS),
+                 help=f"Clock estimator for the OBC times: {ESTIMATORS[0]} (lower envelope) or "
+                 f"kalman (the paper's filter) [{ESTIMATORS[0]}; replay: the recorded run's]."),
 )  # fmt: skip
 
 run_options = _options(
@@ -111,6 +114,7 @@ def verify_stream(
     csv_path: Path | None,
     expected_rate: float | None,
     as_json: bool,
+    clock: str | None,
     **criteria_values: Any,
 ) -> None:
     """The live dashboard until the duration is up (or Ctrl-C), then the verdict."""
@@ -123,6 +127,7 @@ def verify_stream(
         uplink_rate_hz=uplink_rate if uplink else None,
         record_path=record_path,
         csv_path=csv_path,
+        clock=clock,
     )
 
     def view(result: VerifyResult) -> Any:
@@ -171,10 +176,10 @@ def verify(
 @click.argument("recording", type=click.Path(exists=True, dir_okay=False, path_type=Path))
 @criteria_options
 def replay_command(
-    recording: Path, expected_rate: float | None, as_json: bool, **options: Any
+    recording: Path, expected_rate: float | None, as_json: bool, clock: str | None, **options: Any
 ) -> None:
     """The statistics and verdict of a `verify --record` MCAP file, computed again."""
-    result = replay(recording, expected_rate, criteria_from(False, **options))
+    result = replay(recording, expected_rate, criteria_from(False, **options), clock)
     Console(stderr=as_json).print(render(result.summary, result.latest, result.verdict))
     _finish(result, as_json)
 

@@ -7,13 +7,21 @@ Contract: spec/fsp.md. Where things live:
 - `crc`      — the table-driven CRC-8
 - `decoder`  — `StateDecoder`: bytes in, timed packets out; loss, drops, resets counted
 - `encoder`  — wire bytes for both directions; `CommandSender` for the uplink
-- `clock`    — u32 unwrapping and OBC clock alignment (`KalmanClockEstimator`)
+- `clock`    — u32 unwrapping and OBC clock alignment (`make_estimator`: envelope, kalman)
 - `schedule` — when the FC captures: `fsp_rate_hz`, the lockstep interval, the frame rate
 - `reader`   — `FspPort` (bytes in, commands out) over any pyserial URL; `FspReader` decodes
 - `mavlink`  — messages from the tunnel variant (needs pymavlink)
 """
 
-from wftool.fsp.clock import ClockEstimator, ClockState, FcClock, KalmanClockEstimator
+from wftool.fsp.clock import (
+    ESTIMATORS,
+    ClockEstimator,
+    ClockState,
+    EnvelopeClockEstimator,
+    FcClock,
+    KalmanClockEstimator,
+    make_estimator,
+)
 from wftool.fsp.decoder import CommandDecoder, StateDecoder, StreamStats
 from wftool.fsp.encoder import CommandSender, encode_command, encode_state
 from wftool.fsp.framing import Rejection
@@ -22,11 +30,13 @@ from wftool.fsp.reader import DEFAULT_BAUDRATE, FspPort, FspReader
 
 __all__ = [
     "DEFAULT_BAUDRATE",
+    "ESTIMATORS",
     "ClockEstimator",
     "ClockState",
     "CommandDecoder",
     "CommandPacket",
     "CommandSender",
+    "EnvelopeClockEstimator",
     "FcClock",
     "FspPort",
     "FspReader",
@@ -38,4 +48,5 @@ __all__ = [
     "StreamStats",
     "encode_command",
     "encode_state",
+    "make_estimator",
 ]

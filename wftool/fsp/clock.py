@@ -2,15 +2,21 @@
 
 Spec §7–§8. `FcClock` turns the wrapping counter into 64-bit time and tells a wrap (every
 ~71.6 min, not a reset) from a reboot. `ClockEstimator` is the interface the decoder talks
-to; `KalmanClockEstimator` is the reference estimator of spec §8, made wrap-proof by working
-on unwrapped time.
+to. `EnvelopeClockEstimator` (the default) follows the lower envelope of the (FC time, OBC
+arrival) points, where the clock line lies because delays have a hard minimum;
+`KalmanClockEstimator` is the paper's reference filter of spec §8.2, made wrap-proof by working
+on unwrapped time. `make_estimator` picks one by name (`ESTIMATORS`).
 """
 
 from __future__ import annotations
 
 import math
+from collections import deque
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Protocol, runtime_checkable
+
+from wftool.errors import UsageError
 
 U32 = 1 << 32
 _HALF_U32 = 1 << 31
@@ -87,26 +93,50 @@ class ClockState:
     """Measured minus predicted OBC time at the last update."""
     updates: int
     reinits: int
+    """Times the estimator started over on its own (a step of the FC→OBC mapping)."""
+    steps: int = 0
+    """Of those, steps it detected: the OBC clock jumped, or the FC clock stood still."""
+    lock_time_s: float = math.nan
+    """OBC seconds from the latest (re-)initialisation to lock; NaN while acquiring."""
+    rejected: int = 0
+    """Observations ignored: NaN or infinite OBC time, FC time not increasing, lone outliers."""
+    uncertainty_s: float = math.nan
+    """Rough error scale of the one-way line (excluding d_min), if the estimator knows one."""
 
 
 class ClockEstimator(Protocol):
     """Maps FC time (unwrapped µs) to OBC time (s). Swap in a better one through this."""
 
     def observe(self, fc_time_us: int, obc_time: float) -> None:
-        """One received packet: its FC send time and the OBC time it was read."""
+        """One received packet: its FC send time and the OBC time it was read. Bad input
+        (a NaN OBC time, an FC time not after the last) is counted and ignored."""
 
     def to_obc(self, fc_time_us: int) -> float | None:
         """The OBC time of an FC instant; None before the first observation."""
 
     def reset(self) -> None:
-        """The FC rebooted: forget everything."""
+        """The FC rebooted (a new clock epoch): forget everything."""
 
     @property
     def state(self) -> ClockState: ...
 
 
+@runtime_checkable
+class RoundTripObserver(Protocol):
+    """What an estimator offers to take two-way timing too (spec §8.3; not in FSP v5 yet).
+
+    A command left the OBC at `obc_sent` and reached the FC at `fc_received_us`; the FC's
+    reply left at `fc_sent_us` and was read at `obc_received`. The first half bounds the
+    line from below, as one-way packets bound it from above.
+    """
+
+    def observe_round_trip(
+        self, obc_sent: float, fc_received_us: int, fc_sent_us: int, obc_received: float
+    ) -> None: ...
+
+
 class KalmanClockEstimator:
-    """The reference estimator (spec §8) on x = [α, β] with t_obc = α·t_fc + β.
+    """The reference estimator (spec §8.2) on x = [α, β] with t_obc = α·t_fc + β.
 
     Random-walk model Q = diag(1e-10, 1e-6), R = 1e-3, H = [t_fc, 1], times in seconds
     relative to the first packet; a measurement update with every 100th packet; it
@@ -128,6 +158,7 @@ class KalmanClockEstimator:
         self._since_init = 0
         self._residual = math.nan
         self._updates = 0
+        self._lock_time = math.nan
         self.reinits = 0
 
     def reset(self) -> None:
@@ -139,6 +170,7 @@ class KalmanClockEstimator:
         self._p = [[self.P0[0], 0.0], [0.0, self.P0[1]]]
         self._since_init = 0
         self._updates = 0
+        self._lock_time = math.nan
 
     def observe(self, fc_time_us: int, obc_time: float) -> None:
         if self._origin is None:
@@ -169,6 +201,8 @@ class KalmanClockEstimator:
             [p00 - k0 * ph0, p01 - k0 * ph1],
             [p10 - k1 * ph0, p11 - k1 * ph1],
         ]
+        if not self._updates:
+            self._lock_time = t_o
         self._updates += 1
 
     def to_obc(self, fc_time_us: int) -> float | None:
@@ -189,4 +223,388 @@ class KalmanClockEstimator:
             residual_s=self._residual,
             updates=self._updates,
             reinits=self.reinits,
+            steps=self.reinits,  # it re-initialises on a residual > 0.5 s: a step
+            lock_time_s=self._lock_time,
         )
+
+
+Point = tuple[int, float]
+"""(u, v): FC µs since the anchor, and OBC µs since the anchor minus u."""
+
+
+class SlidingLowerHull:
+    """Points sorted by u in a sliding window, and their lower convex hull, kept up to date.
+
+    `append` is Andrew's monotone chain step (amortised O(1)). `drop_before` removes old
+    points; when the leftmost hull vertex goes, only the stretch up to the next vertex is
+    rebuilt — a vertex of the hull of a set stays one for any subset that still holds it.
+    Two-way timing can reuse it upside down: the upper hull is the lower hull of (u, −v).
+    """
+
+    def __init__(self, points: Iterable[Point] = ()) -> None:
+        self.points: deque[Point] = deque()
+        self.hull: list[Point] = []
+        for point in points:
+            self.append(point)
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+    @staticmethod
+    def _push(hull: list[Point], point: Point) -> None:
+        u, v = point
+        while len(hull) >= 2:
+            (u1, v1), (u2, v2) = hull[-2], hull[-1]
+            if (u2 - u1) * (v - v1) - (v2 - v1) * (u - u1) > 0.0:  # a left turn: convex
+                break
+            hull.pop()
+        hull.append(point)
+
+    def append(self, point: Point) -> None:
+        """Add a point right of all others."""
+        self.points.append(point)
+        self._push(self.hull, point)
+
+    def drop_before(self, u: int) -> None:
+        """Forget the points left of `u`."""
+        points, hull = self.points, self.hull
+        if not points or points[0][0] >= u:
+            return
+        while points and points[0][0] < u:
+            points.popleft()
+        keep = 0
+        while keep < len(hull) and hull[keep][0] < u:
+            keep += 1
+        if keep:
+            rebuilt: list[Point] = []
+            if keep < len(hull):  # rebuild up to the first surviving vertex, keep the rest
+                end = hull[keep][0]
+                for point in points:
+                    self._push(rebuilt, point)
+                    if point[0] >= end:
+                        break
+                rebuilt += hull[keep + 1 :]
+            self.hull = rebuilt
+
+    def slope_at(self, u: float) -> float:
+        """Slope of the hull edge over `u` (the ends' edges beyond them); NaN for one vertex."""
+        hull = self.hull
+        if len(hull) < 2:
+            return math.nan
+        i = 1
+        while i < len(hull) - 1 and hull[i][0] < u:
+            i += 1
+        (u1, v1), (u2, v2) = hull[i - 1], hull[i]
+        return (v2 - v1) / (u2 - u1)
+
+    def intercept(self, slope: float) -> float:
+        """The highest c with v ≥ c + slope · u for every point: the supporting line."""
+        return min(v - slope * u for u, v in self.hull)
+
+
+class EnvelopeClockEstimator:
+    """The default estimator: the clock line is the lower envelope of the arrivals (spec §8.1).
+
+    A one-way delay is the minimum transport delay d_min plus something non-negative
+    (queueing, bursts, the wait for the next read), so every (FC time, OBC arrival) point lies
+    on or above t_obc = rate · t_fc + offset + d_min and the fastest packets touch it. As in
+    Moon, Skelly & Towsley (1999) and Zhang, Liu & Xia (2002) the line is a supporting line of
+    the points' lower convex hull — below every point, at the least summed distance from them:
+    the hull edge over the middle of a window that slides so the rate may drift. The window
+    is sized from the link's scatter against a design drift (10 s on a clean link, ~60 s
+    with 16 ms reads).
+
+    Bounded and O(1) amortised: each BUCKET_S of FC time keeps only its lowest point and the
+    window's hull is kept up to date incrementally (`SlidingLowerHull`). Between fits the line
+    drops at once to any point below it, so it stays a lower bound of the data. Numbers are
+    µs from an anchor taken at the first packet — u = FC µs (an exact int), v = OBC µs − u
+    (the residual against rate 1) — so float64 keeps sub-ns resolution over days.
+
+    Steps, watched once tracking: points far below the line (impossible for a positive delay)
+    from STEP_READS distinct reads, or the line dropping as far within STEP_CONFIRM_S, are a
+    backward step of the OBC clock; a lone such point is an outlier, rejected. STEP_READS
+    consecutive buckets, from distinct reads, whose lowest point stays far above the line are
+    a forward step (or the FC clock stood still); one read carrying many buckets is an OBC
+    stall, not a step. The offset restarts from the points after the step, the rate from
+    before it is kept (a property of the two crystals), and the step is counted. Smaller
+    steps than the thresholds pass as a change of delay: the line follows within a window,
+    off by at most the step meanwhile. `reset` (FC reboot, reconnect) forgets everything.
+
+    Two-way timing fits the same frame: a command sent at OBC t1 and received at FC t2 is a
+    point (t2, t1) *below* the line, so the line lies between this hull and the upper hull of
+    such points (a `SlidingLowerHull` of (u, −v)); their gap bounds the offset and their
+    midpoint removes d_min.
+    """
+
+    BUCKET_S = 0.25
+    WINDOW_S = (10.0, 120.0)
+    """Shortest and longest window; in between it balances scatter against DRIFT_PPM_PER_MIN."""
+    DRIFT_PPM_PER_MIN = 2.0
+    """The rate drift the window is sized for (a warming crystal: ~1 ppm/min)."""
+    SUPPORT_AT = 0.5
+    """Where in the window the supporting line touches the hull (0 oldest, 1 newest)."""
+    LOCK_SPAN_S = 4.0
+    """The rate is trusted once it comes from this much data; steps are watched from then."""
+    OFFSET_SPAN_S = 1.0
+    """... and the offset from this much since the latest (re-)initialisation."""
+    LOCK_UNCERTAINTY_S = 50e-6
+    """Locked when, on top of that, the uncertainty is this small or the window is full."""
+    MAX_RATE_PPM = 1000.0
+    """Beyond any crystal: bounds the rate from a window shorter than LOCK_SPAN_S (noisy);
+    from a long enough one it is what the data say (a virtual FC's clock may run off)."""
+    STEP_BELOW_S = 0.25e-3
+    """A point below the line by the larger of this and 4 × the uncertainty cannot be a
+    delay: evidence of a backward step."""
+    STEP_ABOVE_S = 0.5e-3
+    """A bucket minimum above the line by the larger of this and 8 × the median height of
+    bucket minima is evidence of a forward step."""
+    STEP_READS = 3
+    """Evidence from this many distinct reads makes a step: consecutive buckets above, or
+    points below within STEP_CONFIRM_S."""
+    STEP_CONFIRM_S = 0.5
+    _PENDING_CAP = 64
+
+    def __init__(self) -> None:
+        self.reinits = 0
+        self.steps = 0
+        self.rejected = 0
+        self._bucket_us = round(self.BUCKET_S * 1e6)
+        self._window_us_range = (round(self.WINDOW_S[0] * 1e6), round(self.WINDOW_S[1] * 1e6))
+        self._drift = self.DRIFT_PPM_PER_MIN / 60.0  # µs/s²
+        self._lock_span_us = round(self.LOCK_SPAN_S * 1e6)
+        self._offset_span_us = round(self.OFFSET_SPAN_S * 1e6)
+        self._max_slope = self.MAX_RATE_PPM * 1e-6
+        self._pending: deque[tuple[int, float, float]] = deque()
+        self._slopes: deque[tuple[int, float]] = deque(maxlen=16)
+        """(last u, slope) of recent fits: a step restores the rate from before it."""
+        self.reset()
+
+    def reset(self) -> None:
+        self._x0: int | None = None
+        self._y0 = 0.0
+        self._slope = 0.0
+        self._slopes.clear()
+        self._rate_known = False
+        self._rate_span_us = self._lock_span_us  # the window's own rate counts from this span
+        self._window_us = self._window_us_range[1]
+        self._above_us = self.STEP_ABOVE_S * 1e6
+        self._below_us = -self.STEP_BELOW_S * 1e6
+        self._restart([(0, 0.0)], 0, math.nan)
+
+    def _restart(self, points: list[Point], u: int, obc_time: float) -> None:
+        """A new epoch of the offset from `points` (sorted by u) at (u, obc_time); rate kept."""
+        self._window = SlidingLowerHull(points)
+        self._high: list[Point] = []
+        self._pending.clear()
+        self._epoch_u = points[0][0]
+        self._epoch_obc = obc_time
+        self._tracking = self._locked = False
+        self._lock_time = math.nan
+        self._fits = 0
+        self._scatter: tuple[int, float, float] = (-1, math.nan, math.nan)
+        """The median height (µs) at (fits, intercept): the line drops between fits too."""
+        self._excess = 0.0
+        self._drop_since, self._drop_u, self._dropped = obc_time, u, 0.0
+        self._last_u = u
+        self._new_bucket(u)
+        slope = self._slope
+        self._intercept = min(pv - slope * pu for pu, pv in points)
+
+    def _new_bucket(self, u: int) -> None:
+        self._bucket_end = (u // self._bucket_us + 1) * self._bucket_us
+        self._best_key = math.inf
+        self._best: Point | None = None
+
+    def observe(self, fc_time_us: int, obc_time: float) -> None:
+        if self._x0 is None:
+            if math.isfinite(obc_time):
+                self._x0, self._y0 = fc_time_us, obc_time
+                self._restart([(0, 0.0)], 0, obc_time)
+            else:
+                self.rejected += 1
+            return
+        u = fc_time_us - self._x0
+        if u <= self._last_u or not math.isfinite(obc_time):
+            self.rejected += 1
+            return
+        self._last_u = u
+        v = (obc_time - self._y0) * 1e6 - u
+        if u >= self._bucket_end:
+            self._close_bucket(u, obc_time)
+        key = v - self._slope * u  # the point's height over a line of the current slope
+        excess = self._excess = key - self._intercept
+        if excess < 0.0:
+            if self._tracking and self._dropping(u, v, obc_time, excess):
+                return
+            self._intercept = key
+        if key < self._best_key:
+            self._best_key = key
+            self._best = (u, v)
+
+    def _close_bucket(self, u: int, obc_time: float) -> None:
+        best = self._best
+        self._new_bucket(u)
+        if best is None:
+            return
+        self._window.append(best)
+        self._window.drop_before(best[0] - self._window_us)
+        self._fit()
+        self._expire(obc_time)
+        if not self._locked:
+            self._check_lock(obc_time)
+        if (
+            not self._tracking
+            or best[1] - self._slope * best[0] - self._intercept <= self._above_us
+        ):
+            self._high = []
+            return
+        # One read may carry many buckets (the OBC stalled): only distinct reads count.
+        high = self._high
+        if not high or abs(sum(high[-1]) - sum(best)) > 1.0:  # u + v: arrival µs
+            high.append(best)
+        if len(high) >= self.STEP_READS:
+            self._step(high, u, obc_time, high[0][0])
+
+    def _fit(self) -> None:
+        window = self._window
+        first_u = window.points[0][0]
+        span = window.points[-1][0] - first_u
+        slope = self._slope
+        if len(window.hull) >= 2 and (span >= self._rate_span_us or not self._rate_known):
+            slope = window.slope_at(first_u + self.SUPPORT_AT * span)
+            self._rate_known = self._rate_known or span >= self._rate_span_us
+            if not self._rate_known:
+                slope = max(-self._max_slope, min(self._max_slope, slope))
+        self._slope = slope
+        self._slopes.append((window.points[-1][0], slope))
+        self._intercept = window.intercept(slope)
+        self._fits += 1
+        if self._fits % 16 == 0:
+            self._size_window()
+
+    def _size_window(self) -> None:
+        """Noise ≈ 2m·√(B/W) (see `_uncertainty_us`), the bias of a drift D at the window's
+        end D·W²/8: their squared sum is least at W⁵ = 64·m²·B / D²."""
+        low, high = self._window_us_range
+        median = self._median_height_us()
+        best = (64.0 * median**2 * self.BUCKET_S / self._drift**2) ** 0.2
+        self._window_us = max(low, min(high, round(best * 1e6)))
+        self._above_us = max(self.STEP_ABOVE_S * 1e6, 8.0 * median)
+        self._below_us = -max(self.STEP_BELOW_S * 1e6, 4.0 * self._uncertainty_us())
+
+    def _check_lock(self, obc_time: float) -> None:
+        window = self._window.points
+        self._tracking = self._rate_known and (self._last_u - self._epoch_u >= self._offset_span_us)
+        full = window[-1][0] - window[0][0] >= self._window_us - self._bucket_us
+        if self._tracking and (full or self._uncertainty_us() <= self.LOCK_UNCERTAINTY_S * 1e6):
+            self._locked = True
+            self._lock_time = obc_time - self._epoch_obc
+
+    def _median_height_us(self) -> float:
+        """How high the window's bucket minima sit above the line, typically (the scatter)."""
+        fits, intercept, value = self._scatter
+        if fits != self._fits or intercept != self._intercept:
+            slope, intercept = self._slope, self._intercept
+            heights = sorted(v - slope * u - intercept for u, v in self._window.points)
+            value = heights[len(heights) // 2]
+            self._scatter = (self._fits, intercept, value)
+        return value
+
+    def _uncertainty_us(self) -> float:
+        """A scale for the line's error, from how high the window's lowest points sit above it.
+
+        The line rests on the few lowest of K bucket minima. When their heights grow like δ²
+        near zero (a delay density rising from zero, as with quantised reads), those few sit
+        near 2/√K of the median height; for a density that jumps at zero (no reads) the error
+        is smaller still, so this errs on the safe side.
+        """
+        return 2.0 * self._median_height_us() / math.sqrt(len(self._window))
+
+    def _dropping(self, u: int, v: float, obc_time: float, excess: float) -> bool:
+        """A point below the line: a step if far below, or if the line keeps dropping."""
+        if excess < self._below_us:
+            self._below(u, v, obc_time)
+            return True
+        if obc_time - self._drop_since > self.STEP_CONFIRM_S:
+            self._drop_since, self._drop_u, self._dropped = obc_time, u, 0.0
+        self._dropped += excess
+        if self._dropped < self._below_us:
+            self._step([(u, v)], u, obc_time, self._drop_u)
+            return True
+        return False
+
+    def _expire(self, obc_time: float) -> None:
+        """Points far below the line that found no company in time were outliers."""
+        pending = self._pending
+        while pending and obc_time - pending[0][2] > self.STEP_CONFIRM_S:
+            pending.popleft()
+            self.rejected += 1
+
+    def _below(self, u: int, v: float, obc_time: float) -> None:
+        self._expire(obc_time)
+        pending = self._pending
+        if len(pending) < self._PENDING_CAP:
+            pending.append((u, v, obc_time))
+        if len({t for _, _, t in pending}) >= self.STEP_READS:
+            self._step([(pu, pv) for pu, pv, _ in pending], u, obc_time, pending[0][0])
+
+    def _step(self, points: list[Point], u: int, obc_time: float, since_u: int) -> None:
+        """Start over from `points` after a step first seen at `since_u`."""
+        self.steps += 1
+        self.reinits += 1
+        for fit_u, slope in reversed(self._slopes):  # the rate before fits saw the step
+            if fit_u < since_u:
+                self._slope = slope
+                break
+        if self._rate_known:  # keep the rate until the new window is as long as the old
+            self._rate_span_us = self._window_us
+        self._restart(points, u, obc_time)
+
+    def to_obc(self, fc_time_us: int) -> float | None:
+        if self._x0 is None:
+            return None
+        u = fc_time_us - self._x0
+        return self._y0 + (u + self._intercept + self._slope * u) * 1e-6
+
+    @property
+    def points(self) -> int:
+        """Points held (window, open bucket, step candidates): bounded, however long the run."""
+        return len(self._window) + (self._best is not None) + len(self._pending)
+
+    @property
+    def state(self) -> ClockState:
+        if self._x0 is None:
+            return ClockState(
+                locked=False, rate_ppm=0.0, offset_s=math.nan, residual_s=math.nan, updates=0,
+                reinits=self.reinits, steps=self.steps, rejected=self.rejected,
+            )  # fmt: skip
+        return ClockState(
+            locked=self._locked,
+            rate_ppm=self._slope * 1e6,
+            offset_s=self._y0 + (self._intercept - (1.0 + self._slope) * self._x0) * 1e-6,
+            residual_s=self._excess * 1e-6,
+            updates=self._fits,
+            reinits=self.reinits,
+            steps=self.steps,
+            lock_time_s=self._lock_time,
+            rejected=self.rejected,
+            uncertainty_s=self._uncertainty_us() * 1e-6,
+        )
+
+
+ESTIMATORS: tuple[str, ...] = ("envelope", "kalman")
+"""Estimator names for `make_estimator` (and `--clock`); the first is the default."""
+_FACTORIES: dict[str, Callable[[], ClockEstimator]] = {
+    "envelope": EnvelopeClockEstimator,
+    "kalman": KalmanClockEstimator,
+}
+
+
+def make_estimator(name: str = ESTIMATORS[0]) -> ClockEstimator:
+    """A fresh estimator by name: "envelope" (default) or "kalman" (the paper's reference)."""
+    try:
+        return _FACTORIES[name]()
+    except KeyError:
+        raise UsageError(
+            f"unknown clock estimator {name!r}: choose one of {', '.join(ESTIMATORS)}"
+        ) from None

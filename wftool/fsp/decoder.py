@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, fields
 
-from wftool.fsp.clock import U32, ClockEstimator, ClockState, FcClock, KalmanClockEstimator
+from wftool.fsp.clock import U32, ClockEstimator, ClockState, FcClock, make_estimator
 from wftool.fsp.framing import COMMAND_VERSIONS, STATE_VERSIONS, Deframer, Rejection
 from wftool.fsp.packets import (
     DROPS_MODULUS,
@@ -66,10 +66,15 @@ class StreamStats:
 class StateDecoder:
     """Decodes the FC → OBC stream. One instance per port; not thread-safe."""
 
-    def __init__(self, clock: ClockEstimator | None = None) -> None:
+    def __init__(self, clock: ClockEstimator | str | None = None) -> None:
+        """`clock`: an estimator, or its name in `clock.ESTIMATORS` (default: "envelope")."""
         self._deframer = Deframer(STATE_VERSIONS)
         self._fc_clock = FcClock()
-        self.clock: ClockEstimator = clock if clock is not None else KalmanClockEstimator()
+        if clock is None:
+            clock = make_estimator()
+        elif isinstance(clock, str):
+            clock = make_estimator(clock)
+        self.clock: ClockEstimator = clock
         self.stats = StreamStats(rejected=self._deframer.rejected)
         self._last: StatePacket | None = None
         self._epoch = 0

@@ -104,13 +104,20 @@ def _integrity(summary: StreamSummary) -> Text:
 def _clock(summary: StreamSummary) -> Text:
     clock = summary.clock
     if clock is None:
-        return Text("clock alignment: –")
+        return Text(f"clock alignment ({summary.clock_estimator}): –")
     state = "locked" if clock.locked else "acquiring"
-    residual = "–" if math.isnan(clock.residual_s) else f"{clock.residual_s * 1e3:+.3f} ms"
+    if clock.locked and not math.isnan(clock.lock_time_s):
+        state += f" in {clock.lock_time_s:.1f} s"
     return Text.from_markup(
-        f"[b]clock[/] {state} ({clock.updates} updates, {clock.reinits} re-inits)  "
-        f"rate {clock.rate_ppm:+.1f} ppm  offset {clock.offset_s:.3f} s  residual {residual}"
+        f"[b]clock[/] {summary.clock_estimator} {state}  rate {clock.rate_ppm:+.1f} ppm  "
+        f"offset {clock.offset_s:.3f} s\n"
+        f"  residual {_ms(clock.residual_s, '+.3f')}  ± {_ms(clock.uncertainty_s, '.3f')}  "
+        f"re-inits {clock.reinits}  steps {clock.steps}  rejected {clock.rejected}"
     )
+
+
+def _ms(seconds: float, fmt: str) -> str:
+    return "–" if math.isnan(seconds) else f"{seconds * 1e3:{fmt}} ms"
 
 
 def _values(frame: SensorFrame | None) -> list[Text]:

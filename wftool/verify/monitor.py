@@ -8,12 +8,13 @@ bounded by the number of distinct intervals, not by the length of the run.
 
 from __future__ import annotations
 
+import math
 from collections import Counter, deque
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, replace
 
 from wftool.fsp import SensorFrame, StateDecoder, StatePacket, StreamStats
-from wftool.fsp.clock import ClockState
+from wftool.fsp.clock import ESTIMATORS, ClockState, make_estimator
 from wftool.fsp.framing import Rejection
 from wftool.verify.uplink import UplinkStats, UplinkTracker
 
@@ -92,6 +93,8 @@ class StreamSummary:
     wraps: int
     reconnects: int
     clock: ClockState | None
+    clock_estimator: str
+    """The estimator behind `clock` and the frames' OBC times (`wftool.fsp.ESTIMATORS`)."""
     uplink: UplinkStats | None
     connected: bool
 
@@ -111,6 +114,11 @@ class StreamSummary:
             interval = getattr(self, key)
             if interval is not None:
                 data[key]["spread_us"] = interval.spread_us
+        if data["clock"] is not None:  # NaN (not yet known) is not JSON: null
+            data["clock"] = {
+                k: None if isinstance(v, float) and not math.isfinite(v) else v
+                for k, v in data["clock"].items()
+            }
         return data
 
 
@@ -145,8 +153,11 @@ class StreamMonitor:
     arrival_intervals: IntervalHistogram = field(default_factory=IntervalHistogram)
     latest: SensorFrame | None = None
     uplink: UplinkTracker | None = None
+    clock: str = ESTIMATORS[0]
+    """The clock estimator of each connection's decoder, by name (`wftool.fsp.ESTIMATORS`)."""
 
     def __post_init__(self) -> None:
+        make_estimator(self.clock)  # an unknown name fails here, not at the first connect
         self._connection: _Connection | None = None
         self._last_decoder: StateDecoder | None = None  # for E1 and clock after a disconnect
         self._closed = StreamStats(rejected=dict.fromkeys(Rejection, 0))  # finished connections
@@ -164,7 +175,7 @@ class StreamMonitor:
             self._started = t
         elif self._connection is None:
             self._reconnects += 1
-        self._connection = _Connection(StateDecoder(), t)
+        self._connection = _Connection(StateDecoder(self.clock), t)
         self._last_decoder = self._connection.decoder
         self._now = t
 
@@ -255,6 +266,7 @@ class StreamMonitor:
             wraps=totals.wraps,
             reconnects=self._reconnects,
             clock=last.clock_state if last is not None else None,
+            clock_estimator=self.clock,
             uplink=self.uplink.stats() if self.uplink is not None else None,
             connected=connection is not None,
         )

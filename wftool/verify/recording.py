@@ -24,7 +24,7 @@ from mcap.writer import Writer
 
 from wftool import __version__
 from wftool.errors import UsageError
-from wftool.fsp import SensorFrame, StatePacket
+from wftool.fsp import ESTIMATORS, SensorFrame, StatePacket
 from wftool.verify.monitor import StreamMonitor
 from wftool.verify.uplink import UplinkTracker
 
@@ -78,7 +78,11 @@ CSV_COLUMNS = (
 
 
 def run_metadata(
-    port: str, baudrate: int, expected_rate_hz: float | None, uplink_rate_hz: float | None
+    port: str,
+    baudrate: int,
+    expected_rate_hz: float | None,
+    uplink_rate_hz: float | None,
+    clock: str = ESTIMATORS[0],
 ) -> dict[str, str]:
     """What a recording keeps about its run, for `replay_recording` to set up the same monitor."""
     return {
@@ -86,6 +90,7 @@ def run_metadata(
         "baud": str(baudrate),
         "expected_rate_hz": str(expected_rate_hz or ""),
         "uplink_rate_hz": str(uplink_rate_hz or ""),
+        "clock": clock,
     }
 
 
@@ -235,13 +240,19 @@ def read_recording(path: Path) -> tuple[dict[str, str], Iterator[Event]]:
     return metadata, events()
 
 
-def replay_recording(path: Path, expected_rate_hz: float | None = None) -> StreamMonitor:
-    """A monitor that has seen exactly what the recorded run saw."""
+def replay_recording(
+    path: Path, expected_rate_hz: float | None = None, clock: str | None = None
+) -> StreamMonitor:
+    """A monitor that has seen exactly what the recorded run saw; `clock` None takes the
+    recorded run's estimator."""
     metadata, events = read_recording(path)
     if expected_rate_hz is None and metadata.get("expected_rate_hz"):
         expected_rate_hz = float(metadata["expected_rate_hz"])
     uplink = UplinkTracker() if metadata.get("uplink_rate_hz") else None
-    monitor = StreamMonitor(metadata.get("port", str(path)), expected_rate_hz, uplink=uplink)
+    clock = clock or metadata.get("clock") or ESTIMATORS[0]
+    monitor = StreamMonitor(
+        metadata.get("port", str(path)), expected_rate_hz, uplink=uplink, clock=clock
+    )
     for event in events:
         if event.kind == "connected":
             monitor.connected(event.t)

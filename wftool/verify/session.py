@@ -21,7 +21,7 @@ from typing import Any
 
 from wftool.errors import VerificationFailed
 from wftool.fc.msp import MspClient
-from wftool.fsp import DEFAULT_BAUDRATE, SensorFrame, StatePacket
+from wftool.fsp import DEFAULT_BAUDRATE, ESTIMATORS, SensorFrame, StatePacket
 from wftool.fsp.schedule import frame_rate_hz
 from wftool.verify.criteria import Criteria, Verdict, judge
 from wftool.verify.live import LiveOptions, run_live
@@ -88,7 +88,8 @@ class VerifySession:
     `uplink_rate_hz` sends the uplink pattern (None sends nothing); `criteria.uplink` is
     what judges it (`criteria_for(uplink=True)`). `record_path` (MCAP) and `csv_path` are
     created here, so a path that cannot be written fails before the run, and finished when
-    the run ends, however it ends (`close()` them when the session is never run).
+    the run ends, however it ends (`close()` them when the session is never run). `clock`
+    names the estimator of the frames' OBC times (`wftool.fsp.ESTIMATORS`; None: the default).
     """
 
     def __init__(
@@ -102,14 +103,16 @@ class VerifySession:
         uplink_rate_hz: float | None = None,
         record_path: Path | None = None,
         csv_path: Path | None = None,
+        clock: str | None = None,
     ) -> None:
+        clock = clock or ESTIMATORS[0]
         self.options = LiveOptions(url, baudrate, duration_s, uplink_rate_hz)
         self.criteria = criteria or criteria_for(uplink=uplink_rate_hz is not None)
         uplink = UplinkTracker() if uplink_rate_hz is not None else None
-        self.monitor = StreamMonitor(url, expected_rate_hz, uplink=uplink)
+        self.monitor = StreamMonitor(url, expected_rate_hz, uplink=uplink, clock=clock)
         self._recorder = None
         if record_path or csv_path:
-            metadata = run_metadata(url, baudrate, expected_rate_hz, uplink_rate_hz)
+            metadata = run_metadata(url, baudrate, expected_rate_hz, uplink_rate_hz, clock)
             self._recorder = Recorder(record_path, csv_path, metadata)
 
     def run(
@@ -144,11 +147,15 @@ class VerifySession:
 
 
 def replay(
-    path: Path, expected_rate_hz: float | None = None, criteria: Criteria | None = None
+    path: Path,
+    expected_rate_hz: float | None = None,
+    criteria: Criteria | None = None,
+    clock: str | None = None,
 ) -> VerifyResult:
     """The result of a `verify --record` MCAP file, computed again. The uplink is judged
-    when the recorded run sent it, whatever `criteria.uplink` says."""
-    monitor = replay_recording(path, expected_rate_hz)
+    when the recorded run sent it, whatever `criteria.uplink` says; `clock` None uses the
+    recorded run's estimator."""
+    monitor = replay_recording(path, expected_rate_hz, clock)
     criteria = replace(criteria or Criteria(), uplink=monitor.uplink is not None)
     summary = monitor.summary()
     return VerifyResult(summary, judge(summary, criteria), monitor.latest)
