@@ -9,6 +9,7 @@ Contract: spec/fsp.md. Where things live:
 - `encoder`  — wire bytes for both directions; `CommandSender` for the uplink
 - `clock`    — u32 unwrapping and OBC clock alignment (`KalmanClockEstimator`)
 - `reader`   — `FspReader` over any pyserial URL
+- `columns`  — a whole capture into NumPy arrays, one per field (needs NumPy)
 - `mavlink`  — messages from the tunnel variant (needs pymavlink)
 """
 

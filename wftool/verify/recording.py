@@ -16,7 +16,7 @@ import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
@@ -27,6 +27,9 @@ from wftool.errors import UsageError
 from wftool.fsp import SensorFrame, StatePacket
 from wftool.verify.monitor import StreamMonitor
 from wftool.verify.uplink import UplinkTracker
+
+if TYPE_CHECKING:
+    from wftool.fsp.columns import StateColumns
 
 FRAME_TOPIC = "/fsp/frame"
 EVENT_TOPIC = "/fsp/events"
@@ -221,6 +224,32 @@ def read_recording(path: Path) -> tuple[dict[str, str], Iterator[Event]]:
                 raise UsageError(f"recording {path} is damaged: {exc}") from None
 
     return metadata, events()
+
+
+def recording_columns(path: Path) -> list[StateColumns]:
+    """The recorded bytes decoded into columns (needs NumPy), one `StateColumns` per
+    connection: each had its own decoder, and each agrees with it exactly."""
+    from wftool.fsp.columns import decode_columns, numpy
+
+    numpy()  # before reading anything: a missing extra is one line, not a late traceback
+    _, events = read_recording(path)
+    connections: list[tuple[list[bytes], list[float]]] = []
+    current: tuple[list[bytes], list[float]] | None = None
+    for event in events:
+        if event.kind == "connected":
+            current = ([], [])
+            connections.append(current)
+        elif event.kind == "disconnected":
+            current = None
+        elif event.kind == "bytes":
+            if current is None:
+                raise UsageError(f"recording {path} is damaged: bytes outside a connection")
+            current[0].append(event.data)
+            current[1].append(event.t)
+    return [
+        decode_columns(b"".join(chunks), [len(chunk) for chunk in chunks], times)
+        for chunks, times in connections
+    ]
 
 
 def replay_recording(path: Path, expected_rate_hz: float | None = None) -> StreamMonitor:
