@@ -25,7 +25,7 @@ from tests.fsp.strategies import corruption, harm, state_packets
 from tests.fsp.test_decoder import frame
 from tests.verify.test_recording import record_two_connections
 from wftool.errors import UsageError
-from wftool.fsp import StateDecoder, StatePacket, StreamStats
+from wftool.fsp import ClockEstimator, ClockState, StateDecoder, StatePacket, StreamStats
 from wftool.fsp.encoder import encode_state
 from wftool.fsp.framing import Rejection
 from wftool.fsp.packets import FRAME_LAYOUT
@@ -40,10 +40,13 @@ PERIOD = 953
 
 
 def reference(
-    data: bytes, sizes: Sequence[int] | None, times: Sequence[float] | None
+    data: bytes,
+    sizes: Sequence[int] | None,
+    times: Sequence[float] | None,
+    clock: ClockEstimator | None = None,
 ) -> tuple[list[StatePacket], StreamStats]:
     """What StateDecoder makes of `data` fed in reads of `sizes` stamped `times`."""
-    decoder = StateDecoder()
+    decoder = StateDecoder(clock)
     packets: list[StatePacket] = []
     position = 0
     for index, size in enumerate(sizes if sizes is not None else [len(data)]):
@@ -171,6 +174,18 @@ def test_spec_vectors(vectors_dir: Path, name: str) -> None:
     assert stats.packets > 0
 
 
+@pytest.mark.parametrize("name", STATE_VECTORS)
+def test_physical_units_are_the_frames_own(vectors_dir: Path, name: str) -> None:
+    data = (vectors_dir / f"{name}.bin").read_bytes()
+    frames = [f for p in StateDecoder().feed(data) for f in p.frames]
+    decoded = decode_columns(data)
+    for unit in ("acc_g", "gyro_dps", "quaternion", "vbat_v"):
+        expected = [getattr(f, unit) for f in frames]
+        got = getattr(decoded, unit).tolist()
+        flat = zip(np.ravel(expected).tolist(), np.ravel(got).tolist(), strict=True)
+        assert all(same_float(a, b) for a, b in flat), unit
+
+
 @settings(max_examples=200, deadline=None)
 @given(
     st.lists(state_packets, max_size=30).map(lambda ps: b"".join(map(encode_state, ps))), st.data()
@@ -233,6 +248,37 @@ def test_an_over_long_chunk_is_rejected_as_in_the_reads(split: int) -> None:
     cut = len(encode_state(packets[0])) + split
     stats = check(wire, [cut, len(wire) - cut])
     assert stats.errors == 1 and stats.packets == 4
+
+
+class LatestArrival:
+    """A crude estimator of our own: the newest packet's arrival, shifted by FC time."""
+
+    def __init__(self) -> None:
+        self.latest: tuple[int, float] | None = None
+
+    def observe(self, fc_time_us: int, obc_time: float) -> None:
+        self.latest = (fc_time_us, obc_time)
+
+    def to_obc(self, fc_time_us: int) -> float | None:
+        if self.latest is None:
+            return None
+        return self.latest[1] + (fc_time_us - self.latest[0]) * 1e-6
+
+    def reset(self) -> None:
+        self.latest = None
+
+    @property
+    def state(self) -> ClockState:
+        return ClockState(self.latest is not None, 0.0, math.nan, math.nan, 0, 0)
+
+
+@settings(max_examples=50, deadline=None)
+@given(steady_streams())
+def test_any_clock_estimator_is_told_what_state_decoder_tells_it(flight) -> None:
+    wire, times = flight
+    sizes = [118] * len(times)
+    packets, stats = reference(wire, sizes, times, LatestArrival())
+    assert_agree(decode_columns(wire, sizes, times, clock=LatestArrival()), packets, stats)
 
 
 def test_recording_round_trip(tmp_path: Path) -> None:

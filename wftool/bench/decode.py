@@ -253,9 +253,9 @@ def compare_decoders(
 ) -> DecodeComparison:
     """Write the synthetic stream as FSP and as MAVLink, then time each path `repeat` times,
     in turns, and measure the memory of the FSP paths."""
-    from wftool.fsp.columns import numpy
+    from wftool.fsp.columns import require_numpy
 
-    numpy()  # the columnar path needs the analysis extra: say so before minutes of setup
+    require_numpy()  # the columnar path needs the analysis extra: say so before minutes of setup
     packets = int(minutes * 60 * REALTIME_PACKETS_PER_S)
     with tempfile.TemporaryDirectory(prefix="wftool-bench-") as scratch:
         capture, imu = Path(scratch) / "capture.fsp", Path(scratch) / "imu.mavlink"

@@ -31,16 +31,9 @@ from typing import TYPE_CHECKING, Any
 from cobs import cobs
 
 from wftool.errors import UsageError
-from wftool.fsp.clock import (
-    _ALWAYS_FORWARD_US,
-    _SHORT_GAP_S,
-    U32,
-    ClockEstimator,
-    FcClock,
-    KalmanClockEstimator,
-)
+from wftool.fsp.clock import _ALWAYS_FORWARD_US, _SHORT_GAP_S, U32, ClockEstimator, FcClock
 from wftool.fsp.crc import crc8_check_words
-from wftool.fsp.decoder import StreamStats
+from wftool.fsp.decoder import StateDecoder, StreamStats
 from wftool.fsp.framing import STATE_VERSIONS, Rejection, longest_chunk
 from wftool.fsp.packets import (
     DROPS_MODULUS,
@@ -69,7 +62,7 @@ _MAX_CHUNK = longest_chunk(STATE_VERSIONS)
 assert max(STATE_VERSIONS) < 254  # so every COBS encoding of a state packet is 1 byte longer
 
 
-def numpy() -> Any:
+def require_numpy() -> Any:
     """The NumPy module, or a one-line error that names the extra to install."""
     try:
         import numpy
@@ -148,13 +141,13 @@ class StateColumns:
     @property
     def acc_g(self) -> np.ndarray:
         """Acceleration in g; NaN while the FC reports no 1 g calibration (acc_1g = 0)."""
-        np = numpy()
+        np = require_numpy()
         one_g = np.where(self.acc_1g == 0, np.nan, self.acc_1g.astype(np.float64))
         return self.acc / one_g[:, None]
 
     @property
     def gyro_dps(self) -> np.ndarray:
-        return self.gyro * self.gyro_scale.astype(numpy().float64)[:, None]
+        return self.gyro * self.gyro_scale.astype(require_numpy().float64)[:, None]
 
     @property
     def quaternion(self) -> np.ndarray:
@@ -177,9 +170,9 @@ def decode_columns(
 
     `read_sizes` are the lengths of the reads `data` arrived in (default: one read); they
     matter only where an over-long chunk spans reads. `arrival_times` holds each read's OBC
-    time (s) and enables OBC times through `clock` (default: a new `KalmanClockEstimator`).
+    time (s) and enables OBC times through `clock` (default: `StateDecoder`'s default).
     """
-    np = numpy()
+    np = require_numpy()
     buf = np.frombuffer(data, np.uint8)
     size = len(buf)
     if read_sizes is None:
@@ -424,9 +417,8 @@ def _timed(
         obc_time = np.full(2 * count, np.nan)
         arrival_time = np.full(count, np.nan)
     else:
-        obc_time = _obc_times(
-            np, clock or KalmanClockEstimator(), reset, packet_time_us, arrival_time, time_us
-        )
+        estimator = StateDecoder(clock).clock  # the estimator StateDecoder would use
+        obc_time = _obc_times(np, estimator, reset, packet_time_us, arrival_time, time_us)
     frames = {name: raw[name].reshape(2 * count, *raw[name].shape[2:]) for name, _ in FRAME_LAYOUT}
     return StateColumns(
         time_us=time_us,

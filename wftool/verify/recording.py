@@ -229,9 +229,9 @@ def read_recording(path: Path) -> tuple[dict[str, str], Iterator[Event]]:
 def recording_columns(path: Path) -> list[StateColumns]:
     """The recorded bytes decoded into columns (needs NumPy), one `StateColumns` per
     connection: each had its own decoder, and each agrees with it exactly."""
-    from wftool.fsp.columns import decode_columns, numpy
+    from wftool.fsp.columns import decode_columns, require_numpy
 
-    numpy()  # before reading anything: a missing extra is one line, not a late traceback
+    require_numpy()  # before reading anything: a missing extra is one line, not a late traceback
     _, events = read_recording(path)
     connections: list[tuple[list[bytes], list[float]]] = []
     current: tuple[list[bytes], list[float]] | None = None
