@@ -72,6 +72,10 @@ class ParameterError(UsageError):
     """Parameters the flight controller would reject; found before anything was changed."""
 
 
+class MissingExtraError(UsageError):
+    """An optional dependency is not installed (`wftool.extras.require` names the extra)."""
+
+
 class VerificationFailed(WftoolError):
     """The stream ran but did not meet the criteria (exit 1)."""
 

@@ -45,3 +45,22 @@ state_packets = st.builds(
 )
 
 command_packets = st.builds(CommandPacket, rc=tuples(i16, 6), seq=u24, tx_time_us=u32)
+
+corruption = st.one_of(
+    st.tuples(st.just("flip"), st.integers(0, 10_000), st.integers(1, 255)),
+    st.tuples(st.just("cut"), st.integers(0, 10_000), st.integers(1, 200)),
+    st.tuples(st.just("insert"), st.integers(0, 10_000), st.binary(min_size=1, max_size=300)),
+)
+"""(kind, position, argument) of one harm done to a stream: flip bits, cut bytes, insert."""
+
+
+def harm(stream: bytearray, kind: str, position: int, arg: int | bytes) -> None:
+    """Do one `corruption` to `stream` in place (`position` wraps around its length)."""
+    position = position % len(stream) if stream else 0
+    if kind == "flip":
+        if stream:
+            stream[position] ^= arg
+    elif kind == "cut":
+        del stream[position : position + arg]
+    else:
+        stream[position:position] = arg

@@ -5,7 +5,7 @@ from __future__ import annotations
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tests.fsp.strategies import command_packets, state_packets
+from tests.fsp.strategies import command_packets, corruption, harm, state_packets
 from wftool.fsp import CommandDecoder, StateDecoder
 from wftool.fsp.crc import crc8
 from wftool.fsp.encoder import encode_command, encode_state
@@ -37,13 +37,6 @@ def test_any_split_of_the_stream_gives_the_same_result(packets, data):
     assert decoder.stats == whole.stats
 
 
-corruption = st.one_of(
-    st.tuples(st.just("flip"), st.integers(0, 10_000), st.integers(1, 255)),
-    st.tuples(st.just("cut"), st.integers(0, 10_000), st.integers(1, 200)),
-    st.tuples(st.just("insert"), st.integers(0, 10_000), st.binary(min_size=1, max_size=300)),
-)
-
-
 @settings(max_examples=300)
 @given(
     st.lists(state_packets, min_size=1, max_size=25),
@@ -58,14 +51,7 @@ def test_corruption_never_raises_never_passes_bad_crc_and_keeps_untouched(
     for index, (kind, position, arg) in damage:
         if index >= len(segments):
             continue
-        segment = segments[index]
-        position %= len(segment)
-        if kind == "flip":
-            segment[position] ^= arg
-        elif kind == "cut":
-            del segment[position : position + arg]
-        else:
-            segment[position:position] = arg
+        harm(segments[index], kind, position, arg)
         touched.add(index)
 
     stream = bytearray(leading_garbage)

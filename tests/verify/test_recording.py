@@ -37,8 +37,11 @@ class RecordingMonitor(StreamMonitor):
         return packets
 
 
-def test_replay_gives_the_same_summary(tmp_path: Path):
-    mcap, table = tmp_path / "run.mcap", tmp_path / "run.csv"
+def record_two_connections(
+    mcap: Path, table: Path | None, *, reboot: bool = False
+) -> RecordingMonitor:
+    """Record a run of 300 packets, a reconnect, a chunk of garbage and 100 packets more;
+    with `reboot`, the FC then restarts and sends 50 packets from its boot time again."""
     with Recorder(mcap, table, {"port": "socket://sim:5762"}) as recorder:
         live = RecordingMonitor(recorder)
         live.connected(0.0)
@@ -47,7 +50,15 @@ def test_replay_gives_the_same_summary(tmp_path: Path):
         live.connected(t + 0.5)
         live.feed(b"garbage\x00", t + 0.6)
         t = feed_steady(live, range(300, 400), t + 0.6)
+        if reboot:
+            t = feed_steady(live, range(50), t + 2.0)
         live.disconnected(t)
+    return live
+
+
+def test_replay_gives_the_same_summary(tmp_path: Path):
+    mcap, table = tmp_path / "run.mcap", tmp_path / "run.csv"
+    live = record_two_connections(mcap, table)
     replayed = replay_recording(mcap).summary()
     assert replayed == live.summary()
     assert replayed.reconnects == 1 and replayed.frames == 800

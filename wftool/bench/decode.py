@@ -3,18 +3,27 @@
 The stream is a synthetic flight (E1 on, moving values) written once to a capture file;
 each replay reads that file in chunks, as `wftool replay` or an OBC reading a UART would,
 and feeds them with real-time arrival stamps. Reading, `StateDecoder.feed` and walking
-the frames are timed; memory is sampled along the way (the replay holds one chunk).
+the frames are timed. Memory is `tracemalloc`'s peak, in runs of their own.
+
+The columnar path (`fsp.columns`) decodes the same file, with the same reads and stamps,
+into arrays; the reference from outside is pymavlink parsing a stream of as many
+`HIGHRES_IMU` messages (one IMU sample each) made by its own encoder.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
-import resource
+import statistics
+import tempfile
 import time
+import tracemalloc
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from wftool.fsp import SensorFrame, StateDecoder, StatePacket
+from wftool.errors import UsageError
+from wftool.fsp import SensorFrame, StateDecoder, StatePacket, StreamStats
 from wftool.fsp.encoder import encode_state
 
 REALTIME_PACKETS_PER_S = 525  # 1049 Hz of frames, two per packet (spec §7)
@@ -27,14 +36,20 @@ class DecodeBenchResult:
     frames: int
     bytes: int
     seconds: float
-    rss_kib: tuple[int, ...]
-    """Peak RSS sampled at 0 %, 25 %, 50 %, 75 % and 100 % of the replay."""
     errors: int
     lost_frames: int
+    stats: StreamStats | None = None
+    """The decoder's totals (FSP paths), to show that the paths agree."""
+    result_bytes: int = 0
+    """What the decoded result holds (columnar: the arrays)."""
 
     @property
     def packets_per_s(self) -> float:
         return self.packets / self.seconds
+
+    @property
+    def frames_per_s(self) -> float:
+        return self.frames / self.seconds
 
     @property
     def realtime_factor(self) -> float:
@@ -69,39 +84,201 @@ def write_capture(path: Path, packets: int, tunnel: bool) -> None:
             t_us += 2 * FRAME_PERIOD_US
 
 
-def _rss_kib() -> int:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-
-
-def run_decode_bench(capture: Path, chunk_bytes: int) -> DecodeBenchResult:
-    """Replay `capture` once through a fresh decoder."""
-    size = capture.stat().st_size
-    checkpoints = [size * q // 4 for q in range(1, 4)]
+def run_decode_bench(
+    capture: Path, chunk_bytes: int, aligned: bool = True, keep: bool = False
+) -> DecodeBenchResult:
+    """Replay `capture` once through a fresh decoder; `aligned` stamps the reads, so OBC
+    times are estimated too; `keep` holds on to every packet, as an analysis that wanted
+    them all would (for the memory figure)."""
     decoder = StateDecoder()
-    rss = [_rss_kib()]
+    kept: list[StatePacket] = []
     frames = 0
     clock = time.perf_counter
-    arrival_step = chunk_bytes / (REALTIME_PACKETS_PER_S * 118)  # real-time arrival stamps
-    arrival = 0.0
+    _, arrivals = _reads(capture.stat().st_size, chunk_bytes)
     with capture.open("rb", buffering=0) as stream:
         start = clock()
-        while chunk := stream.read(chunk_bytes):
-            arrival += arrival_step
-            for packet in decoder.feed(chunk, arrival):
+        for arrival in arrivals:
+            packets = decoder.feed(stream.read(chunk_bytes), arrival if aligned else None)
+            for packet in packets:
                 for _frame_out in packet.frames:
                     frames += 1
-            if checkpoints and decoder.stats.bytes >= checkpoints[0]:
-                checkpoints.pop(0)
-                rss.append(_rss_kib())
+            if keep:
+                kept += packets
         elapsed = clock() - start
-    rss.append(_rss_kib())
     stats = decoder.stats
     return DecodeBenchResult(
         packets=stats.packets,
         frames=frames,
         bytes=stats.bytes,
         seconds=elapsed,
-        rss_kib=tuple(rss),
         errors=stats.errors,
         lost_frames=stats.lost_frames,
+        stats=stats,
     )
+
+
+def _reads(size: int, chunk_bytes: int) -> tuple[list[int], list[float]]:
+    """The read sizes and arrival stamps `run_decode_bench` uses for a file of `size` bytes."""
+    sizes = [chunk_bytes] * (size // chunk_bytes) + (
+        [size % chunk_bytes] if size % chunk_bytes else []
+    )
+    step = chunk_bytes / (REALTIME_PACKETS_PER_S * 118)  # real-time arrival stamps
+    arrivals = list(itertools.accumulate([step] * len(sizes)))
+    return sizes, arrivals
+
+
+def run_columnar_bench(capture: Path, chunk_bytes: int, aligned: bool) -> DecodeBenchResult:
+    """Read `capture` and decode it into columns, with the reads `run_decode_bench` makes;
+    `aligned` passes their arrival stamps, so OBC times are estimated too."""
+    from wftool.fsp.columns import decode_columns
+
+    sizes, arrivals = _reads(capture.stat().st_size, chunk_bytes)
+    clock = time.perf_counter
+    start = clock()
+    columns = decode_columns(capture.read_bytes(), sizes, arrivals if aligned else None)
+    elapsed = clock() - start
+    stats = columns.stats
+    return DecodeBenchResult(
+        packets=stats.packets,
+        frames=len(columns),
+        bytes=stats.bytes,
+        seconds=elapsed,
+        errors=stats.errors,
+        lost_frames=stats.lost_frames,
+        stats=stats,
+        result_bytes=columns.nbytes,
+    )
+
+
+def write_mavlink_stream(path: Path, samples: int) -> None:
+    """`samples` MAVLink 2 HIGHRES_IMU messages of the synthetic flight, by pymavlink."""
+    try:
+        from pymavlink.dialects.v20 import common as mavlink2
+    except ImportError:
+        raise UsageError(
+            "bench decode compares with pymavlink: pip install 'wftool[mavlink]'"
+        ) from None
+    mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+    t_us = 4_000_000_000
+    with path.open("wb") as stream:
+        for _ in range(samples):
+            f = _frame(t_us)
+            message = mav.highres_imu_encode(
+                t_us, *(a / 2048 * 9.80665 for a in f.acc), *(math.radians(g) for g in f.gyro_dps),
+                0.0, 0.0, 0.0, 1013.25, 0.0, 0.0, 25.0, 0x3F,
+            )  # fmt: skip
+            stream.write(message.pack(mav))
+            t_us += FRAME_PERIOD_US
+
+
+def run_mavlink_bench(stream_path: Path, chunk_bytes: int) -> DecodeBenchResult:
+    """pymavlink's parser over `stream_path` in reads of `chunk_bytes`: messages out."""
+    from pymavlink.dialects.v20 import common as mavlink2
+
+    parser = mavlink2.MAVLink(None)
+    messages = 0
+    clock = time.perf_counter
+    with stream_path.open("rb", buffering=0) as stream:
+        start = clock()
+        while chunk := stream.read(chunk_bytes):
+            for message in parser.parse_buffer(chunk) or ():
+                if message.get_type() == "HIGHRES_IMU":
+                    messages += 1
+        elapsed = clock() - start
+    return DecodeBenchResult(
+        packets=messages,
+        frames=messages,
+        bytes=stream_path.stat().st_size,
+        seconds=elapsed,
+        errors=parser.total_receive_errors,
+        lost_frames=0,
+    )
+
+
+def traced_peak_bytes(run: Callable[[], object]) -> int:
+    """The most memory Python and NumPy held at once during `run()` (tracemalloc), above
+    what was held before. Tracing slows allocation: time runs without it."""
+    tracemalloc.start()
+    try:
+        tracemalloc.reset_peak()
+        before, _ = tracemalloc.get_traced_memory()
+        run()
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    return peak - before
+
+
+PER_FRAME = "per-frame API: FC times only"
+PER_FRAME_ALIGNED = "per-frame API: + OBC clock alignment"
+COLUMNAR = "columnar: FC times only"
+COLUMNAR_ALIGNED = "columnar: + OBC clock alignment"
+MAVLINK = "pymavlink: HIGHRES_IMU, 1 sample each"
+LIKE_FOR_LIKE = {
+    PER_FRAME: PER_FRAME,
+    PER_FRAME_ALIGNED: PER_FRAME_ALIGNED,
+    COLUMNAR: PER_FRAME,
+    COLUMNAR_ALIGNED: PER_FRAME_ALIGNED,
+    MAVLINK: PER_FRAME,
+}
+"""Each path's per-frame reference: the one that works out the same times."""
+
+
+@dataclass(frozen=True)
+class DecodeComparison:
+    """Every path's runs over the same stream, and their memory."""
+
+    frames: int
+    capture_bytes: int
+    runs: dict[str, list[DecodeBenchResult]]
+    """Path → its runs; the paths took turns, so noise hits them alike."""
+    memory: dict[str, int]
+    """What ran → tracemalloc peak (bytes) of one run of its own."""
+
+    def best(self, path: str) -> float:
+        return max(r.frames_per_s for r in self.runs[path])
+
+    def median(self, path: str) -> float:
+        return statistics.median_low(r.frames_per_s for r in self.runs[path])
+
+    @property
+    def agree(self) -> bool:
+        """Whether every FSP run ended with the same decoder totals."""
+        totals = [r.stats for runs in self.runs.values() for r in runs if r.stats is not None]
+        return all(stats == totals[0] for stats in totals)
+
+
+def compare_decoders(
+    minutes: float, chunk_bytes: int, tunnel: bool, repeat: int
+) -> DecodeComparison:
+    """Write the synthetic stream as FSP and as MAVLink, then time each path `repeat` times,
+    in turns, and measure the memory of the FSP paths."""
+    from wftool.extras import require
+    from wftool.fsp.columns import WHAT
+
+    # The columnar path needs the analysis extra: say so before minutes of setup.
+    require("analysis", "numpy", what=WHAT)
+    packets = int(minutes * 60 * REALTIME_PACKETS_PER_S)
+    with tempfile.TemporaryDirectory(prefix="wftool-bench-") as scratch:
+        capture, imu = Path(scratch) / "capture.fsp", Path(scratch) / "imu.mavlink"
+        write_mavlink_stream(imu, 2 * packets)
+        write_capture(capture, packets, tunnel)
+        paths: dict[str, Callable[[], DecodeBenchResult]] = {
+            PER_FRAME: lambda: run_decode_bench(capture, chunk_bytes, aligned=False),
+            PER_FRAME_ALIGNED: lambda: run_decode_bench(capture, chunk_bytes),
+            COLUMNAR: lambda: run_columnar_bench(capture, chunk_bytes, aligned=False),
+            COLUMNAR_ALIGNED: lambda: run_columnar_bench(capture, chunk_bytes, aligned=True),
+            MAVLINK: lambda: run_mavlink_bench(imu, chunk_bytes),
+        }
+        runs: dict[str, list[DecodeBenchResult]] = {path: [] for path in paths}
+        for _ in range(repeat):
+            for path, run in paths.items():
+                runs[path].append(run())
+        memory = {
+            "per-frame API, frames walked, none kept": traced_peak_bytes(paths[PER_FRAME_ALIGNED]),
+            "per-frame API, every packet kept": traced_peak_bytes(
+                lambda: run_decode_bench(capture, chunk_bytes, keep=True)
+            ),
+            "columnar, + OBC clock alignment": traced_peak_bytes(paths[COLUMNAR_ALIGNED]),
+        }
+        return DecodeComparison(2 * packets, capture.stat().st_size, runs, memory)

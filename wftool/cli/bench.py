@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import sys
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -69,45 +68,54 @@ def bench_build_command(target: str, repeat: int, project_dir: Path | None, **op
     type=click.IntRange(1),
     default=3,
     show_default=True,
-    help="Replays; the best and the median are shown (a shared machine is noisy).",
+    help="Runs of each path, interleaved; the best and the median are shown (a shared "
+    "machine is noisy).",
 )
 def bench_decode(minutes: float, chunk: int, tunnel: bool, repeat: int) -> None:
-    """FSP decoder throughput (bytes in → frames out) and memory over a long replay."""
-    from wftool.bench.decode import REALTIME_PACKETS_PER_S, run_decode_bench, write_capture
+    """FSP decode throughput and memory: the per-frame API, the columnar path (NumPy) with
+    and without OBC clock alignment, and pymavlink parsing as many HIGHRES_IMU samples."""
+    from wftool.bench.decode import (
+        COLUMNAR_ALIGNED,
+        LIKE_FOR_LIKE,
+        MAVLINK,
+        PER_FRAME_ALIGNED,
+        compare_decoders,
+    )
 
-    with tempfile.TemporaryDirectory(prefix="wftool-bench-") as scratch:
-        capture = Path(scratch) / "capture.fsp"
-        write_capture(capture, int(minutes * 60 * REALTIME_PACKETS_PER_S), tunnel)
-        runs = sorted(
-            (run_decode_bench(capture, chunk) for _ in range(repeat)),
-            key=lambda r: r.packets_per_s,
-        )
-    best, median = runs[-1], runs[len(runs) // 2]
-    table = Table(title=f"FSP decode, {minutes:g} min replay, {chunk} B reads, {repeat} runs")
-    table.add_column("")
-    table.add_column("best", justify="right")
-    table.add_column("median", justify="right")
-    table.add_row("packets", f"{best.packets:,}", f"{median.packets:,}")
-    table.add_row("frames out", f"{best.frames:,}", f"{median.frames:,}")
-    table.add_row("decode time", f"{best.seconds:.2f} s", f"{median.seconds:.2f} s")
-    table.add_row("packets/s", f"{best.packets_per_s:,.0f}", f"{median.packets_per_s:,.0f}")
-    table.add_row(
-        "frames/s", f"{best.frames / best.seconds:,.0f}", f"{median.frames / median.seconds:,.0f}"
+    result = compare_decoders(minutes, chunk, tunnel, repeat)
+    frames = result.frames
+    table = Table(
+        title=f"FSP decode, {minutes:g} min stream: {frames:,} frames in "
+        f"{result.capture_bytes / 1e6:.1f} MB, {chunk} B reads, {repeat} run(s) of each",
+        box=None,
+        pad_edge=False,
     )
-    table.add_row(
-        "MB/s",
-        f"{best.bytes / best.seconds / 1e6:.1f}",
-        f"{median.bytes / median.seconds / 1e6:.1f}",
-    )
-    table.add_row(
-        "vs real time (525 packets/s)",
-        f"{best.realtime_factor:,.0f}x",
-        f"{median.realtime_factor:,.0f}x",
-    )
-    table.add_row("errors, lost frames", f"{best.errors}, {best.lost_frames}", "")
+    for column in ("path", "frames/s best", "median", "vs per-frame", "vs pymavlink"):
+        table.add_column(column, justify="left" if column == "path" else "right")
+    for path in result.runs:
+        best, median, reference = result.best(path), result.median(path), LIKE_FOR_LIKE[path]
+        table.add_row(
+            path, f"{best:,.0f}", f"{median:,.0f}",
+            f"{best / result.best(reference):.2f}x / {median / result.median(reference):.2f}x",
+            f"{best / result.best(MAVLINK):.2f}x / {median / result.median(MAVLINK):.2f}x",
+        )  # fmt: skip
     out.print(table)
-    rss = " / ".join(f"{k / 1024:.1f}" for k in best.rss_kib)
-    out.print(f"peak RSS at 0/25/50/75/100 % of the best replay: {rss} MiB")
+    out.print(
+        "ratios: best / best and median / median of runs taking turns in one process; "
+        "vs per-frame: the per-frame run that works out the same times"
+    )
+    stats = result.runs[PER_FRAME_ALIGNED][0].stats
+    out.print(
+        f"columnar and per-frame totals agree: {'yes' if result.agree else 'NO'} "
+        f"({stats.packets:,} packets, {stats.errors} rejected, {stats.lost_frames} lost, "
+        f"{stats.fc_drops} FC drops, {stats.wraps} wrap(s), {stats.resets} reset(s))"
+    )
+    held = result.runs[COLUMNAR_ALIGNED][0].result_bytes
+    out.print("memory, tracemalloc peak of one more run each (Python and NumPy allocations):")
+    for what, peak in result.memory.items():
+        out.print(f"  {what:<40} {peak / 2**20:8.1f} MiB  {peak / frames:6,.0f} B/frame")
+    out.print(f"  of which the columns themselves        {held / 2**20:8.1f} MiB  "
+              f"{held / frames:6,.0f} B/frame")  # fmt: skip
 
 
 @bench_group.command("stream")

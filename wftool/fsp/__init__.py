@@ -10,6 +10,7 @@ Contract: spec/fsp.md. Where things live:
 - `clock`    — u32 unwrapping and OBC clock alignment (`make_estimator`: envelope, kalman)
 - `schedule` — when the FC captures: `fsp_rate_hz`, the lockstep interval, the frame rate
 - `reader`   — `FspPort` (bytes in, commands out) over any pyserial URL; `FspReader` decodes
+- `columns`  — a whole capture into NumPy arrays, one per field (needs NumPy)
 - `mavlink`  — messages from the tunnel variant (needs pymavlink)
 """
 

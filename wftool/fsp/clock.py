@@ -25,10 +25,11 @@ RESET_SLACK_S = 1.0
 """How far the FC clock may run ahead of the OBC clock between two packets (read bursts)."""
 RESET_SLACK_RATE = 1e-3
 """... plus this fraction of the OBC time elapsed (1000 ppm, beyond any crystal)."""
-_ALWAYS_FORWARD_US = int(RESET_SLACK_S * 1e6)
+STEADY_STEP_US = int(RESET_SLACK_S * 1e6)
 """A step this small is forward without a wrap in between, after a gap shorter than ..."""
-_SHORT_GAP_S = 4000.0
-"""... this, which leaves no room for a whole wrap (2^32 µs ≈ 4295 s)."""
+STEADY_GAP_S = 4000.0
+"""... this, which leaves no room for a whole wrap (2^32 µs ≈ 4295 s). `FcClock` decides
+nothing for such steps; the columnar decoder (`columns`) applies the same rule to arrays."""
 
 
 class FcClock:
@@ -55,8 +56,8 @@ class FcClock:
             self._last_time_us = raw_us
             return raw_us, False
         delta = (raw_us - last_raw) % U32
-        short_gap = obc_time is None or last_obc is None or obc_time - last_obc < _SHORT_GAP_S
-        if delta < _ALWAYS_FORWARD_US and short_gap:  # a steady stream: nothing to decide
+        short_gap = obc_time is None or last_obc is None or obc_time - last_obc < STEADY_GAP_S
+        if delta < STEADY_STEP_US and short_gap:  # a steady stream: nothing to decide
             time_us = self._last_time_us + delta
             if raw_us < last_raw:
                 self.wraps += 1

@@ -9,12 +9,17 @@ after a packet is a constant XOR one table lookup per byte position. Each positi
 a single `bytes.translate` over that byte of every packet, and the XOR of all positions is
 a few big-integer folds. On a read of ~35 packets that is ~4x faster than `crc8` per
 packet, and it is what lets a replay decode at >100k packets/s without a compiled CRC.
+`crc8_check_words` is the same idea over NumPy rows, for the columnar decoder.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from functools import lru_cache
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import numpy as np
 
 POLY = 0xD5
 INIT = 0xFF
@@ -85,3 +90,40 @@ def crc8_residues(packets: Sequence[bytes], length: int) -> list[int]:
         folded = (folded & ((1 << (bits * keep)) - 1)) ^ (folded >> (bits * keep))
         remaining = keep
     return [term ^ init_term for term in folded.to_bytes(count, "little")]
+
+
+@lru_cache(maxsize=1)
+def _table_powers() -> tuple[bytes, ...]:
+    """TABLE applied 0..8 times: what a byte adds to the register k positions before the end."""
+    powers = [bytes(range(256))]
+    for _ in range(8):
+        powers.append(powers[-1].translate(TABLE))
+    return tuple(powers)
+
+
+def crc8_check_words(words: np.ndarray) -> np.ndarray:
+    """Whether each row's CRC checks: rows of a k × m little-endian uint64 array, each a
+    packet (CRC byte included) followed by zero bytes up to 8·m.
+
+    The zero padding passes the register through TABLE once per byte, which is one-to-one,
+    so it ends at 0 exactly when the packet's does. The register is Horner's scheme over the
+    words: advance the 8-byte state by eight positions (one `translate` of every byte), XOR
+    in the next word, and at the end fold the eight lanes with their remaining distance.
+    That is one table lookup per byte without a Python loop over packets or bytes.
+    """
+    import numpy as np
+
+    count, width = words.shape
+    powers = _table_powers()
+    state = words[:, 0].copy()
+    for column in range(1, width):
+        advanced = np.frombuffer(state.tobytes().translate(powers[8]), "<u8")
+        state = advanced ^ words[:, column]
+    lanes = state.view(np.uint8).reshape(count, 8)
+    init_term = INIT
+    for _ in range(8 * width):
+        init_term = TABLE[init_term]
+    register = np.full(count, init_term, np.uint8)
+    for lane in range(8):
+        register ^= np.frombuffer(lanes[:, lane].tobytes().translate(powers[8 - lane]), np.uint8)
+    return register == 0

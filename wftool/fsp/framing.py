@@ -41,6 +41,13 @@ STATE_VERSIONS: Mapping[int, int] = {
 COMMAND_VERSIONS: Mapping[int, int] = {COMMAND_LENGTH: VERSION_BASE}
 
 
+def longest_chunk(versions: Mapping[int, int]) -> int:
+    """The longest chunk between delimiters that a packet of `versions` can make: COBS adds
+    one byte per 254 started. A longer chunk is rejected (LENGTH) without decoding it."""
+    longest = max(versions)
+    return longest + 1 + longest // 254
+
+
 def encode_frame(payload: bytes) -> bytes:
     """`payload` as it goes on the wire: COBS-encoded and delimited."""
     return cobs.encode(payload) + DELIMITER
@@ -56,9 +63,7 @@ class Deframer:
 
     def __init__(self, versions: Mapping[int, int]) -> None:
         self._versions = dict(versions)
-        # COBS adds one byte per 254 started: the longest chunk a valid packet can make.
-        longest = max(self._versions)
-        self._max_chunk = longest + 1 + longest // 254
+        self._max_chunk = longest_chunk(self._versions)
         self._tail = b""
         self._discarding = False
         self.rejected: dict[Rejection, int] = dict.fromkeys(Rejection, 0)

@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Iterator
 from typing import Any
 
-from wftool.errors import UsageError
+from wftool.extras import require
 from wftool.fsp.packets import StatePacket
 
 
@@ -19,12 +19,9 @@ class MavlinkTunnel:
     """Reassembles MAVLink messages from consecutive tunnel packets."""
 
     def __init__(self, dialect: str = "common") -> None:
-        try:
-            from pymavlink import mavutil
-        except ImportError:
-            raise UsageError(
-                "parsing tunnelled MAVLink needs pymavlink: pip install 'wftool[mavlink]'"
-            ) from None
+        require("mavlink", what="parsing tunnelled MAVLink")
+        from pymavlink import mavutil
+
         mavutil.set_dialect(dialect)
         self._parser = mavutil.mavlink.MAVLink(None)
         self._parser.robust_parsing = True  # padding and junk become BAD_DATA, not exceptions

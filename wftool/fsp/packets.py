@@ -28,12 +28,37 @@ E1_FLAG = 1 << 23
 SEQ_MODULUS = 1 << 24
 DROPS_MODULUS = 1 << 16
 
-_FRAME_FORMAT = "I3hhf3h4h6h4HH"
-_FRAME_VALUES = 24
-_HEADER_FORMAT = "<BBHI"  # version, seq bits 0-7, seq bits 8-23, tx_time_us
-_TRAILER_FORMAT = "HBB"  # reserved2 bits 0-15, reserved2 bits 16-23, crc
+Layout = tuple[tuple[str, str], ...]
+"""(field name, `struct` code) in wire order, little-endian: the one statement of a layout,
+from which the `struct` formats here and the NumPy dtypes of `columns` are derived."""
+
+HEADER_LAYOUT: Layout = (
+    ("version", "B"), ("seq_low", "B"), ("seq_high", "H"), ("tx_time_us", "I"),
+)  # fmt: skip
+"""Spec §3 bytes 0–7: `seq` is bits 0–7 and 8–23 of the E1 sequence number."""
+FRAME_LAYOUT: Layout = (
+    ("sample_time_us", "I"), ("acc", "3h"), ("acc_1g", "h"), ("gyro_scale", "f"), ("gyro", "3h"),
+    ("attitude", "4h"), ("rc", "6h"), ("rpm", "4H"), ("vbat", "H"),
+)  # fmt: skip
+"""Spec §4: one sensor frame; a state packet carries two, after the header."""
+TUNNEL_LAYOUT: Layout = (("mavlink", f"{MAVLINK_FIELD_LENGTH}s"),)
+"""The 180-byte variant's MAVLink field, between the frames and the trailer."""
+TRAILER_LAYOUT: Layout = (("drops", "H"), ("reserved2_high", "B"), ("crc", "B"))
+"""reserved2 bits 0–15 (E1 `drops`) and 16–23 (bit 23: E1 in use), then the CRC."""
+
+
+def _format(layout: Layout) -> str:
+    return "".join(code for _, code in layout)
+
+
+_FRAME_FORMAT = _format(FRAME_LAYOUT)
+_FRAME_VALUES = sum(int(code[:-1] or 1) for _, code in FRAME_LAYOUT)
+_HEADER_FORMAT = "<" + _format(HEADER_LAYOUT)
+_TRAILER_FORMAT = _format(TRAILER_LAYOUT)
 _STATE_BASE = struct.Struct(_HEADER_FORMAT + _FRAME_FORMAT * 2 + _TRAILER_FORMAT)
-_STATE_TUNNEL = struct.Struct(_HEADER_FORMAT + _FRAME_FORMAT * 2 + "64s" + _TRAILER_FORMAT)
+_STATE_TUNNEL = struct.Struct(
+    _HEADER_FORMAT + _FRAME_FORMAT * 2 + _format(TUNNEL_LAYOUT) + _TRAILER_FORMAT
+)
 _HEADER = struct.Struct(_HEADER_FORMAT)
 _FRAME = struct.Struct("<" + _FRAME_FORMAT)
 _TRAILER = struct.Struct("<" + _TRAILER_FORMAT)
@@ -139,9 +164,7 @@ class SensorFrame:
         return self.values[23] / 100.0
 
 
-FRAME_FIELDS = (
-    "sample_time_us", "acc", "acc_1g", "gyro_scale", "gyro", "attitude", "rc", "rpm", "vbat",
-)  # fmt: skip
+FRAME_FIELDS = tuple(name for name, _ in FRAME_LAYOUT)
 
 
 class StatePacket:

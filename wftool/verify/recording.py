@@ -16,7 +16,7 @@ import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
@@ -24,9 +24,13 @@ from mcap.writer import Writer
 
 from wftool import __version__
 from wftool.errors import UsageError
+from wftool.extras import require
 from wftool.fsp import ESTIMATORS, SensorFrame, StatePacket
 from wftool.verify.monitor import StreamMonitor
 from wftool.verify.uplink import UplinkTracker
+
+if TYPE_CHECKING:
+    from wftool.fsp.columns import StateColumns
 
 FRAME_TOPIC = "/fsp/frame"
 EVENT_TOPIC = "/fsp/events"
@@ -238,6 +242,35 @@ def read_recording(path: Path) -> tuple[dict[str, str], Iterator[Event]]:
                 raise UsageError(f"recording {path} is damaged: {exc}") from None
 
     return metadata, events()
+
+
+def recording_columns(path: Path, clock: str | None = None) -> list[StateColumns]:
+    """The recorded bytes decoded into columns (needs NumPy), one `StateColumns` per
+    connection: each had its own decoder, and each agrees with it exactly. `clock` None
+    takes the recorded run's estimator."""
+    from wftool.fsp import columns
+
+    # Before reading anything: a missing extra is one line, not a late traceback.
+    require("analysis", "numpy", what=columns.WHAT)
+    metadata, events = read_recording(path)
+    clock = clock or metadata.get("clock") or ESTIMATORS[0]
+    connections: list[tuple[list[bytes], list[float]]] = []
+    current: tuple[list[bytes], list[float]] | None = None
+    for event in events:
+        if event.kind == "connected":
+            current = ([], [])
+            connections.append(current)
+        elif event.kind == "disconnected":
+            current = None
+        elif event.kind == "bytes":
+            if current is None:
+                raise UsageError(f"recording {path} is damaged: bytes outside a connection")
+            current[0].append(event.data)
+            current[1].append(event.t)
+    return [
+        columns.decode_columns(b"".join(chunks), list(map(len, chunks)), times, clock=clock)
+        for chunks, times in connections
+    ]
 
 
 def replay_recording(

@@ -1,0 +1,26 @@
+"""`wftool bench decode` runs every path over the same stream and prints them side by side.
+
+Figures are not judged here (benchmarks print, tests do not time); what is checked is that
+every path ran over the whole stream and that the FSP paths ended with the same totals.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from tests.conftest import run_cli
+
+pytest.importorskip("numpy", reason="bench decode needs wftool[analysis]")
+pytest.importorskip("pymavlink", reason="bench decode needs wftool[mavlink]")
+
+
+def test_bench_decode_prints_every_path_and_their_agreement(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    code, out, err = run_cli(capsys, "bench", "decode", "--minutes", "0.02", "--repeat", "2")
+    assert (code, err) == (0, "")
+    assert "1,260 frames" in out  # 0.02 min at 525 packets/s, two frames each
+    for path in ("per-frame API", "columnar", "OBC clock alignment", "HIGHRES_IMU"):
+        assert path in out
+    assert "columnar and per-frame totals agree: yes (630 packets, 0 rejected" in out
+    assert "every packet kept" in out and "of which the columns themselves" in out
