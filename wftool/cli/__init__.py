@@ -10,9 +10,10 @@ import sys
 
 import click
 from rich.console import Console
+from rich.markup import escape
 
 from wftool import __version__
-from wftool.cli import bench, build, fc, stream
+from wftool.cli import analyze, bench, build, fc, stream
 from wftool.errors import EXIT_USAGE, WftoolError
 
 err_console = Console(stderr=True, highlight=False)
@@ -24,7 +25,7 @@ def cli() -> None:
     """Build, flash, configure and verify the Weitflug research firmware."""
 
 
-for _module in (build, fc, stream, bench):
+for _module in (build, fc, stream, bench, analyze):
     for _command in _module.COMMANDS:
         cli.add_command(_command)
 
@@ -34,7 +35,7 @@ def main(argv: list[str] | None = None) -> None:
     try:
         cli.main(args=argv, prog_name="wftool", standalone_mode=False)
     except WftoolError as exc:
-        err_console.print(f"[bold red]error:[/] {exc}", soft_wrap=True)
+        err_console.print(f"[bold red]error:[/] {escape(str(exc))}", soft_wrap=True)
         sys.exit(exc.exit_code)
     except click.ClickException as exc:
         exc.show()
