@@ -11,7 +11,12 @@ import importlib
 from wftool.errors import MissingExtraError
 
 EXTRAS: dict[str, dict[str, str]] = {
-    "analysis": {"numpy": "NumPy"},
+    "analysis": {
+        "numpy": "NumPy",
+        "scipy": "SciPy",
+        "matplotlib": "Matplotlib",
+        "unicorn": "Unicorn",
+    },
     "mavlink": {"pymavlink": "pymavlink"},
 }
 """Per extra, its modules (import name -> the name a user knows). Keep in step with

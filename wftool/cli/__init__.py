@@ -14,7 +14,7 @@ from rich.console import Console
 from rich.markup import escape
 
 from wftool import __version__
-from wftool.cli import bench, build, fc, sitl, verify
+from wftool.cli import analyze, bench, build, fc, sitl, verify
 from wftool.errors import EXIT_USAGE, Terminated, WftoolError
 
 err_console = Console(stderr=True, highlight=False)
@@ -26,7 +26,7 @@ def cli() -> None:
     """Build, flash, configure and verify the Weitflug research firmware."""
 
 
-for _module in (build, fc, verify, sitl, bench):
+for _module in (build, fc, verify, sitl, bench, analyze):
     for _command in _module.COMMANDS:
         cli.add_command(_command)
 
