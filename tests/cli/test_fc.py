@@ -11,7 +11,12 @@ from pathlib import Path
 import pytest
 
 from tests.conftest import run_cli as run
+from tests.fc.faulty_transport import FaultyTransport
 from wftool.cli import fc as fc_commands
+from wftool.errors import MspError
+from wftool.fc import params
+from wftool.fc.cli_session import CliSession
+from wftool.fc.msp import MspClient
 from wftool.sitl.process import VirtualFC
 
 
@@ -109,3 +114,191 @@ def test_doctor_fix_into_a_directory(capsys: pytest.CaptureFixture[str], tmp_pat
     assert f"wrote {tmp_path / '70-wftool.rules'}" in err
     assert "  ok udev rules: access to 0483:df11 and 0483:5740 granted" in out
     assert code == (1 if " fail " in out else 0)
+
+
+# Issue 14: nothing lost, nothing hidden. The FC's settings are read back over its CLI
+# and "out of its CLI" means it answers MSP; faults are injected by the faulty transport
+# around the real link (tests/fc/faulty_transport.py).
+
+
+def _settings(fc: VirtualFC, *names: str) -> dict[str, str]:
+    session = CliSession.open(fc.url)
+    try:
+        return {name: session.get(name).value for name in names}
+    finally:
+        session.exit()
+        fc.wait_back()
+
+
+def _answers_msp(fc: VirtualFC) -> bool:
+    with MspClient.open(fc.url) as msp:
+        try:
+            return msp.fc_variant() == "BTFL"
+        except MspError:
+            return False
+
+
+def _eeprom(fc: VirtualFC) -> bytes:
+    return (fc.workdir / "eeprom.bin").read_bytes()
+
+
+DEFAULTS = {"gyro_lpf1_static_hz": "250", "p_pitch": "47", "gyro_lpf2_static_hz": "500"}
+
+
+@pytest.mark.parametrize(
+    "assignments",
+    [
+        ["gyro_lpf1_static_hz=200", "craft_name=M\xfcller"],
+        ["gyro_lpf1_static_hz=200", "craft_name=a\nb"],
+        ["gyro_lpf1_static_hz\nfeature MOTOR_STOP=200"],
+        ["gyro_lpf1_static_hz=200", "craft_name=" + "x" * 260],
+    ],
+    ids=["non-ascii", "newline-in-value", "newline-in-name", "longer-than-a-cli-line"],
+)
+def test_text_the_cli_cannot_carry_is_refused_before_the_fc_is_touched(
+    on_sitl: VirtualFC, capsys: pytest.CaptureFixture[str], tmp_path: Path, assignments: list[str]
+) -> None:
+    eeprom = _eeprom(on_sitl)
+    code, _, err = run(capsys, "set", *assignments, "--backup-dir", str(tmp_path / "b"))
+    assert code == 2, err
+    assert err.count("\n") == 1 and err.startswith("error: ") and "nothing was changed" in err
+    assert not (tmp_path / "b").exists()  # refused before the backup: the FC was not touched
+    assert on_sitl.starts == 1 and _answers_msp(on_sitl)
+    assert _eeprom(on_sitl) == eeprom
+    assert _settings(on_sitl, "gyro_lpf1_static_hz") == {"gyro_lpf1_static_hz": "250"}
+
+
+def test_a_toml_value_the_cli_cannot_carry_is_refused(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    toml = tmp_path / "x.toml"
+    toml.write_text('gyro_lpf1_static_hz = 200\ncraft_name = "caf\xe9"\n')
+    code, _, err = run(capsys, "config", "apply", str(toml))
+    assert code == 2
+    assert err == (
+        "error: x.toml: craft_name: 'set craft_name = caf\xe9': the FC's CLI takes printable "
+        "ASCII only, not '\xe9' (nothing was changed)\n"
+    )
+
+
+@pytest.mark.parametrize("where", ["under-a-file", "/sys/kernel"])
+def test_an_unwritable_backup_dir_is_refused_before_the_fc_is_touched(
+    on_sitl: VirtualFC, capsys: pytest.CaptureFixture[str], tmp_path: Path, where: str
+) -> None:
+    if where == "under-a-file":
+        (tmp_path / "a-file").write_text("")
+        backup_dir = tmp_path / "a-file" / "backups"
+    else:
+        backup_dir = Path(where)
+        if not backup_dir.is_dir():
+            pytest.skip(f"{where} is not a directory here")
+    code, _, err = run(capsys, "set", "gyro_lpf1_static_hz=200", "--backup-dir", str(backup_dir))
+    assert code == 2, err
+    assert err.startswith(f"error: cannot write backups to {backup_dir}: ")
+    assert err.endswith("(choose another --backup-dir; the FC was not touched)\n")
+    assert err.count("\n") == 1
+    assert on_sitl.starts == 1 and _answers_msp(on_sitl)
+    assert _settings(on_sitl, "gyro_lpf1_static_hz") == {"gyro_lpf1_static_hz": "250"}
+
+
+def test_ctrl_c_during_apply_leaves_the_fc_as_it_was_and_out_of_its_cli(
+    on_sitl: VirtualFC,
+    capsys: pytest.CaptureFixture[str],
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # Ctrl-C right after the third `set` went out: two changes are live in RAM, the
+    # third is on its way.
+    faults = FaultyTransport(interrupt_at=b"set gyro_lpf2_static_hz")
+    monkeypatch.setattr(params, "open_port", faults.open_port)
+    eeprom = _eeprom(on_sitl)
+    code, _, err = run(capsys, "set", "gyro_lpf1_static_hz=200", "p_pitch=50",
+                       "gyro_lpf2_static_hz=400", "--backup-dir", str(tmp_path))  # fmt: skip
+    assert faults.fired == ["Ctrl-C after b'set gyro_lpf2_static_hz = 400\\n'"]
+    assert code == 130
+    assert "wftool: interrupted — nothing was saved; the FC drops unsaved changes" in err
+    monkeypatch.undo()
+    assert _answers_msp(on_sitl)
+    assert _eeprom(on_sitl) == eeprom
+    assert _settings(on_sitl, *DEFAULTS) == DEFAULTS
+
+
+def test_an_fc_found_sitting_in_its_cli_is_taken_out_of_it(
+    on_sitl: VirtualFC, capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    # What an interrupted session leaves behind: the CLI open, a change live in RAM.
+    session = CliSession.open(on_sitl.url)
+    session.set("gyro_lpf1_static_hz", "123")
+    session.link.close()
+    assert not _answers_msp(on_sitl)
+
+    code, out, err = run(capsys, "info")
+    assert code == 0, err
+    assert out.startswith("BTFL 2025.12.5")
+    assert "the FC was sitting in its CLI" in err and "drops any unsaved change" in err
+    code, _, err = run(capsys, "set", "p_pitch=55", "--backup-dir", str(tmp_path))
+    assert code == 0, err
+    assert "sitting in its CLI" not in err
+    assert _settings(on_sitl, "gyro_lpf1_static_hz", "p_pitch") == {
+        "gyro_lpf1_static_hz": "250",
+        "p_pitch": "55",
+    }
+
+
+def test_a_link_dropped_at_save_is_not_reported_as_saved(
+    on_sitl: VirtualFC,
+    capsys: pytest.CaptureFixture[str],
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    faults = FaultyTransport(drop_at=b"save")  # the FC never gets `save`
+    monkeypatch.setattr(params, "open_port", faults.open_port)
+    eeprom = _eeprom(on_sitl)
+    code, _, err = run(capsys, "set", "gyro_lpf1_static_hz=200", "--backup-dir", str(tmp_path))
+    assert faults.fired == ["link dropped at b'save\\n'"]
+    assert (code, "wftool: saved" in err) == (2, False), err
+    assert err.splitlines()[-1].startswith(
+        "error: the link dropped before the FC got `save` — nothing was saved"
+    )
+    monkeypatch.undo()
+    assert _answers_msp(on_sitl)
+    assert _eeprom(on_sitl) == eeprom
+    assert _settings(on_sitl, "gyro_lpf1_static_hz") == {"gyro_lpf1_static_hz": "250"}
+
+
+def test_a_save_the_fc_got_before_the_link_dropped_is_confirmed_by_reading_back(
+    on_sitl: VirtualFC,
+    capsys: pytest.CaptureFixture[str],
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    faults = FaultyTransport(drop_at=b"save", drop_after_sending=True)
+    monkeypatch.setattr(params, "open_port", faults.open_port)
+    code, _, err = run(capsys, "set", "gyro_lpf1_static_hz=200", "--backup-dir", str(tmp_path))
+    assert faults.fired == ["link dropped at b'save\\n'"]
+    assert code == 0, err
+    assert "saved; waiting" not in err
+    assert "saved: the FC did not confirm `save`, but every setting reads back as asked" in err
+    monkeypatch.undo()
+    on_sitl.restart()  # a cold start: what eeprom.bin holds
+    assert _settings(on_sitl, "gyro_lpf1_static_hz") == {"gyro_lpf1_static_hz": "200"}
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["info", "--port", "socket://127.0.0.1:abc"],
+         "error: cannot open socket://127.0.0.1:abc: the port must be a number from 1 to 65535, "
+         "e.g. socket://127.0.0.1:5761\n"),
+        (["info", "--port", "rfc2217://"],
+         "error: cannot open rfc2217://: no host in it; expected rfc2217://HOST:PORT, "
+         "e.g. rfc2217://127.0.0.1:2217\n"),
+        (["set", "gyro_lpf1_static_hz==200"],
+         "error: expected NAME=VALUE, got 'gyro_lpf1_static_hz==200'\n"),
+    ],
+    ids=["socket-port-not-a-number", "rfc2217-without-host", "double-equals"],
+)  # fmt: skip
+def test_unclear_input_gets_a_clear_one_line_usage_error(
+    capsys: pytest.CaptureFixture[str], args: list[str], message: str
+) -> None:
+    assert run(capsys, *args)[::2] == (2, message)

@@ -202,8 +202,13 @@ def test_backup_and_restore_round_trip(virtual_fc: VirtualFC, tmp_path: Path) ->
         ("defaults\n", "x.txt:1: only `defaults nosave` is allowed"),
         ("set gyro_lpf1_static_hz 5\n", "x.txt:1: expected `set NAME = VALUE`"),
         ("# only a comment\nbatch start\nsave\n", "x.txt: no configuration commands"),
+        ("set a = =b\n", "x.txt:1: `set a = =b`: expected `set NAME = VALUE` with one '='"),
+        ("set name = caf\xe9\n", "x.txt:1: 'set name = caf\xe9': the FC's CLI takes printable "
+         "ASCII only, not '\xe9' \\(nothing was changed\\)"),
+        (f"set name = {'x' * 250}\n",
+         "x.txt:1: .*: 261 characters; the FC's CLI keeps at most 255"),
     ],
-)
+)  # fmt: skip
 def test_scripts_wftool_will_not_replay_are_refused_up_front(text: str, message: str) -> None:
     with pytest.raises(UsageError, match=message.replace("[", r"\[").replace("`", "`")):
         parse_cli_script(text, "x.txt")
@@ -216,7 +221,7 @@ def test_restore_plan_selects_the_recorded_receiver() -> None:
     )
 
 
-@pytest.mark.parametrize("argument", ["gyro", "=5", "gyro="])
+@pytest.mark.parametrize("argument", ["gyro", "=5", "gyro=", "gyro==5"])
 def test_assignment_syntax(argument: str) -> None:
     with pytest.raises(UsageError, match="expected NAME=VALUE"):
         plan_from_assignments([argument])

@@ -180,7 +180,9 @@ def test_worktree_superproject_and_dirty_tree(project, tmp_path):
     (other.tree / "Makefile").write_text("# local edit\n")
     with pytest.raises(TreeError, match=r"uncommitted changes.*--clean"):
         tree.ensure_tree(other, target)
-    tree.ensure_tree(other, target, clean=True)
+    tree.ensure_tree(other, target, allow_dirty=True)  # for `patches.apply` to decide
+    assert tree.dirty_paths(other) == ["Makefile"]
+    patches.apply(other, force=True)
     assert tree.dirty_paths(other) == []
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import shutil
+import subprocess
 
 import pytest
 
@@ -185,11 +186,13 @@ def test_cli_reports_a_conflict_in_one_line(fixture_project, make_patch, upstrea
     assert "\n" not in error
     assert "0002-a.patch" in error and "src/main/a.c" in error
     assert "Traceback" not in error
-    with pytest.raises(SystemExit):
+    with pytest.raises(SystemExit) as status_exit:
         main(["patches", "status", "--project", str(fixture_project.root)])
-    status = capsys.readouterr().out
-    assert "state     pristine" in status
-    assert "does not apply: 0002-a.patch" in status
+    status = capsys.readouterr()
+    assert "state     pristine" in status.out
+    assert status_exit.value.code == 1  # the series does not apply: that is a failure
+    assert status.err.startswith("error: the series does not apply to the pin: 0002-a.patch")
+    assert status.err.count("\n") == 1
 
 
 def test_cli_status_and_reset(fixture_project, make_patch, capsys):
@@ -210,3 +213,79 @@ def test_fixture_is_a_real_submodule_layout(fixture_project, upstream):
     _, pin = upstream
     assert tree.pinned_commit(fixture_project) == pin
     assert tree.is_checked_out(fixture_project)
+
+
+LATIN1_C = "int a(void)\n{\n    return 10; /* M\xfcller */\n}\n".encode("latin-1")
+
+
+def _latin1_patch(project: Project, scratch_parent, upstream) -> None:
+    """0001-latin1.patch: a change whose text is Latin-1, not UTF-8 (byte 0xfc)."""
+    repo, pin = upstream
+    scratch = scratch_parent / "latin1-scratch"
+    run_git(scratch_parent, "clone", "-q", str(repo), str(scratch))
+    run_git(scratch, "checkout", "-q", "--detach", pin)
+    (scratch / "src/main/a.c").write_bytes(LATIN1_C)
+    commit_all(scratch, "Credit M\xfcller")
+    patch = subprocess.run(
+        ["git", "format-patch", "--stdout", "-1", "HEAD"], cwd=scratch, check=True,
+        capture_output=True,
+    ).stdout  # fmt: skip
+    assert b"\xfc" in patch
+    (project.patches_dir / "0001-latin1.patch").write_bytes(patch)
+
+
+def test_a_patch_with_a_non_utf8_byte_is_applied_and_reported(
+    fixture_project, upstream, tmp_path, capsys
+):
+    _latin1_patch(fixture_project, tmp_path, upstream)
+    root = str(fixture_project.root)
+    for args, expected in ((["status"], "missing  0001-latin1.patch"),
+                           (["apply"], "applied 1 patch(es)"),
+                           (["status"], "applied  0001-latin1.patch")):  # fmt: skip
+        with pytest.raises(SystemExit) as exit_info:
+            main(["patches", *args, "--project", root])
+        captured = capsys.readouterr()
+        assert (exit_info.value.code, "Traceback" in captured.err) == (0, False), captured.err
+        assert expected in captured.out
+    assert (fixture_project.tree / "src/main/a.c").read_bytes() == LATIN1_C
+    assert patches.export(fixture_project) == ["0001-Credit-M-ller.patch"]
+    assert patches.status(fixture_project).state == "applied"
+
+
+def _cli(capsys, *args: str) -> tuple[int, str, str]:
+    with pytest.raises(SystemExit) as exit_info:
+        main(list(args))
+    captured = capsys.readouterr()
+    return int(exit_info.value.code or 0), captured.out, captured.err
+
+
+def test_refusal_names_the_option_the_command_has(fixture_project, make_patch, capsys):
+    make_patch(fixture_project, "0001-a.patch", {"src/main/a.c": A_PATCHED})
+    (fixture_project.tree / "src/main/b.c").write_text("/* local edit */\n")
+    root = str(fixture_project.root)
+    for command, option in ((["patches", "apply"], "--force"), (["patches", "reset"], "--force")):
+        code, _, err = _cli(capsys, *command, "--project", root)
+        assert code == 1
+        assert f"or pass {option} to " in err and "--clean" not in err, err
+    assert (fixture_project.tree / "src/main/b.c").read_text() == "/* local edit */\n"
+
+
+def test_force_checks_the_series_applies_before_discarding_anything(
+    fixture_project, make_patch, upstream, capsys
+):
+    _, pin = upstream
+    make_patch(fixture_project, "0001-a.patch", {"src/main/a.c": A_PATCHED})
+    make_patch(fixture_project, "0002-a.patch", {"src/main/a.c": "x\n"}, base=pin)  # conflicts
+    (fixture_project.tree / "src/main/b.c").write_text("/* a day of work */\n")
+    (fixture_project.tree / "notes.txt").write_text("untracked, too\n")
+
+    code, _, err = _cli(
+        capsys, "patches", "apply", "--force", "--project", str(fixture_project.root)
+    )
+
+    assert code == 1
+    assert "0002-a.patch does not apply: src/main/a.c" in err
+    assert "betaflight/ is left as it was, nothing discarded" in err
+    assert (fixture_project.tree / "src/main/b.c").read_text() == "/* a day of work */\n"
+    assert (fixture_project.tree / "notes.txt").exists()
+    assert tree.head(fixture_project) == pin

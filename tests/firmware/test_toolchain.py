@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from wftool.cli import main
-from wftool.errors import ToolchainError
+from wftool.errors import ToolchainError, UsageError
 from wftool.firmware import toolchain
 from wftool.firmware.toolchain import SdkRelease
 
@@ -180,6 +180,46 @@ def test_unpinned_archive_needs_an_explicit_sha256(server, tmp_path):
     assert server.range_headers == []
 
 
+def test_a_cached_toolchain_is_checked_against_the_sha256(server, archive, tmp_path):
+    release = SdkRelease(server.url, None)
+    installed = toolchain.install(release, sha256=sha256(archive), cache=tmp_path)
+    downloads = len(server.range_headers)
+
+    assert toolchain.install(release, sha256=sha256(archive), cache=tmp_path) == installed
+    with pytest.raises(ToolchainError) as wrong:
+        toolchain.install(release, sha256="0" * 64, cache=tmp_path)
+    assert str(wrong.value) == (
+        f"the cached toolchain {installed} was unpacked from an archive with SHA-256 "
+        f"{sha256(archive)}, not {'0' * 64}; delete that directory and run "
+        "`wftool toolchain install` again"
+    )
+    (installed / toolchain.ARCHIVE_RECORD).unlink()  # e.g. copied in by hand
+    with pytest.raises(ToolchainError, match="has no record of the archive it came from"):
+        toolchain.install(release, sha256=sha256(archive), cache=tmp_path)
+    assert len(server.range_headers) == downloads  # checked, never fetched again
+
+
+def test_a_build_uses_a_cached_toolchain_only_if_its_record_checks_out(tmp_path, monkeypatch):
+    pinned, sha = next(iter(toolchain.PINNED_SHA256.items()))
+    directory = SdkRelease(pinned, None).directory_name
+    cached = tmp_path / "wftool" / "toolchains" / directory
+    fake_gcc(cached / "bin", "13.3.1")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    monkeypatch.delenv(toolchain.TOOLCHAIN_ENV, raising=False)
+    (cached / toolchain.ARCHIVE_RECORD).write_text(f"{'1' * 64}  {pinned}\n")
+    with pytest.raises(ToolchainError, match=f"SHA-256 {'1' * 64}, not {sha}"):
+        toolchain.find_arm_toolchain("13.3.1", installed=directory)
+    (cached / toolchain.ARCHIVE_RECORD).write_text(f"{sha}  {pinned}\n")
+    assert toolchain.find_arm_toolchain("13.3.1", installed=directory).gcc.parent == cached / "bin"
+
+
+@pytest.mark.parametrize("given", ["xyz", "0" * 63, "g" * 64])
+def test_a_malformed_sha256_is_refused_before_downloading(server, tmp_path, given):
+    with pytest.raises(UsageError, match=f"--sha256 '{given}': expected 64 hexadecimal digits"):
+        toolchain.install(SdkRelease(server.url, None), sha256=given, cache=tmp_path)
+    assert server.range_headers == []
+
+
 def test_interrupted_download_keeps_the_part_for_resuming(tmp_path):
     with pytest.raises(ToolchainError, match="run the command again to resume"):
         toolchain.install(
@@ -223,6 +263,8 @@ def test_explicit_toolchain_dir_and_version_check(tmp_path):
 def test_search_order_env_then_cache_then_path(tmp_path, monkeypatch):
     fake_gcc(tmp_path / "env", "1.0.0")
     fake_gcc(tmp_path / "cache" / "wftool" / "toolchains" / "rel" / "bin", "2.0.0")
+    record = tmp_path / "cache" / "wftool" / "toolchains" / "rel" / toolchain.ARCHIVE_RECORD
+    record.write_text(f"{'2' * 64}  rel.tar.xz\n")  # as `install` leaves it
     fake_gcc(tmp_path / "path", "3.0.0")
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
     monkeypatch.setenv("PATH", str(tmp_path / "path"))
@@ -255,3 +297,14 @@ def test_cli_install_from_a_mirror(server, archive, tmp_path, monkeypatch, capsy
         main([*args, "--sha256", sha256(archive)])
     assert installed.value.code == 0
     assert f"toolchain ready: {tmp_path / 'wftool' / 'toolchains' / TOP}" in capsys.readouterr().out
+
+    with pytest.raises(SystemExit) as mismatch:  # the cache is there now, and checked
+        main([*args, "--sha256", "0" * 64])
+    assert mismatch.value.code == 1
+    captured = capsys.readouterr()
+    assert "ready" not in captured.out
+    assert captured.err.startswith("error: the cached toolchain ")
+    with pytest.raises(SystemExit) as malformed:
+        main([*args, "--sha256", "xyz"])
+    assert malformed.value.code == 2
+    assert capsys.readouterr().err == ("error: --sha256 'xyz': expected 64 hexadecimal digits\n")

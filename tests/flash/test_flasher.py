@@ -17,10 +17,12 @@ import pytest
 from intelhex import IntelHex
 
 from tests.conftest import run_cli
+from tests.fc.faulty_transport import FaultyTransport
 from tests.flash.standin import UNTOUCHED, StandinDfuUtil
 from wftool.cli import fc as fc_commands
 from wftool.cli import main
 from wftool.errors import FlashError, UsageError
+from wftool.fc import params
 from wftool.fc.msp import BoardInfo, BuildInfo, MspClient
 from wftool.fc.params import apply_plan, plan_from_assignments
 from wftool.firmware.manifest import BuildFlags, Manifest
@@ -79,7 +81,7 @@ def test_mismatched_firmware_is_refused_before_anything_happens(
     virtual_fc: VirtualFC, built_hex: Path, standin_dfu_util: StandinDfuUtil, tmp_path: Path
 ) -> None:
     with pytest.raises(
-        FlashError, match=r"refusing to flash .*the image does not name the FC's target SITL"
+        UsageError, match=r"refusing to flash .*the image does not name the FC's target SITL"
     ):
         flash_firmware(virtual_fc, built_hex, backup_dir=tmp_path / "backups")
     assert virtual_fc.running and virtual_fc.starts == 1
@@ -169,7 +171,7 @@ def test_no_reboot_with_full_erase_needs_force(tmp_path: Path) -> None:
     hex_path = _image(
         tmp_path / "fw.hex", BuildInfo("Jan 01 2000", "00:00:00", "abcdef0"), "STM32F7X2"
     )
-    with pytest.raises(FlashError, match="without a backup; add --force"):
+    with pytest.raises(UsageError, match="without a backup; add --force"):
         flash_firmware(
             VirtualFC(tmp_path, tmp_path),
             hex_path,
@@ -182,7 +184,7 @@ def test_no_reboot_with_full_erase_needs_force(tmp_path: Path) -> None:
 def test_a_bin_over_the_config_sector_needs_full_erase(built_hex: Path, tmp_path: Path) -> None:
     binary = tmp_path / "fw.bin"
     load_image(built_hex).tobinfile(str(binary), start=0x0800_0000)
-    with pytest.raises(FlashError, match="covers the config sector at 0x08004000"):
+    with pytest.raises(UsageError, match="covers the config sector at 0x08004000"):
         flash_firmware(VirtualFC(tmp_path, tmp_path), binary, backup_dir=tmp_path, no_reboot=True)
 
 
@@ -224,6 +226,50 @@ def test_wftool_flash_command_end_to_end(
     assert out.splitlines()[0] == "flashed fw.hex; erased sectors 0, 2"
     assert "Download" in err and "100%" in err  # the progress bars
     assert "get_status failed after leave, as usual" in err
+
+
+def test_an_image_for_another_mcu_is_bad_input(
+    virtual_fc: VirtualFC,
+    standin_dfu_util: StandinDfuUtil,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    monkeypatch.setattr(fc_commands, "find_board", lambda port, present=True: virtual_fc)
+    hex_path = _image(tmp_path / "fw.hex", _build_of(virtual_fc), "STM32F7X2")  # not "SITL"
+    code, _, err = run_cli(capsys, "flash", str(hex_path), "--backup-dir", str(tmp_path / "b"))
+    assert (code, err.splitlines()[-1]) == (
+        2,
+        "error: refusing to flash fw.hex: the image does not name the FC's target SITL "
+        "(--force overrides)",
+    )
+    assert standin_dfu_util.calls() == [] and virtual_fc.starts == 1
+
+
+def test_full_erase_does_not_happen_after_an_incomplete_backup(
+    virtual_fc: VirtualFC,
+    standin_dfu_util: StandinDfuUtil,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    # The FC's `diff all` loses its rest after a `# ` line (tests/fc/faulty_transport.py).
+    monkeypatch.setattr(fc_commands, "find_board", lambda port, present=True: virtual_fc)
+    faults = FaultyTransport(stall_after_comment=5, stall_s=None)
+    monkeypatch.setattr(params, "open_port", faults.open_port)
+    hex_path = _image(tmp_path / "fw.hex", _build_of(virtual_fc), "SITL", "STM32F7X2")
+    code, _, err = run_cli(capsys, "flash", str(hex_path), "--full-erase", "--backup-dir",
+                           str(tmp_path / "b"))  # fmt: skip
+    assert faults.fired and faults.fired[0].startswith("`diff all` lost the rest")
+    assert code == 1
+    assert err.splitlines()[-1].startswith("error: the FC's `diff all` output on ")
+    assert "incomplete" in err.splitlines()[-1]
+    assert standin_dfu_util.calls() == []  # never in DFU, never erased
+    assert standin_dfu_util.flash() == bytes([UNTOUCHED]) * len(standin_dfu_util.flash())
+    assert b"ResetToBootloader" not in virtual_fc.log_path.read_bytes()
+    assert list((tmp_path / "b").iterdir()) == []
+    monkeypatch.undo()
+    assert _build_of(virtual_fc).git_revision  # out of its CLI: it answers MSP
 
 
 def _project(root: Path) -> Path:

@@ -13,7 +13,7 @@ from rich.console import Console
 from rich.table import Table
 
 from wftool.cli.progress import BYTES, UNITS, ProgressBars
-from wftool.errors import BuildError
+from wftool.errors import BuildError, PatchError
 from wftool.firmware import (
     BuildFlags,
     BuildOptions,
@@ -210,7 +210,7 @@ def patches_status(project_dir: Path | None) -> None:
     for path in current.dirty:
         out.print(f"  dirty    {path}")
     if current.problem:
-        out.print(f"[red]the series does not apply:[/] {current.problem}")
+        raise PatchError(f"the series does not apply to the pin: {current.problem}")
 
 
 @patches_group.command("apply")
@@ -226,7 +226,7 @@ def patches_apply(target: str, force: bool, project_dir: Path | None) -> None:
     """Put betaflight/ at the pin plus the series (a no-op when it already is)."""
     project = project_from(project_dir)
     with locked(project):
-        tree.ensure_tree(project, resolve_target(project, target), clean=force)
+        tree.ensure_tree(project, resolve_target(project, target), allow_dirty=True)
         changed = patches.apply(project, force=force)
     count = len(patches.series(project))
     out.print(
@@ -305,7 +305,7 @@ def toolchain_show(target: str, toolchain_dir: Path | None, project_dir: Path | 
     """Show which compiler a build of TARGET would use, and the version it should be."""
     project = project_from(project_dir)
     resolved = resolve_target(project, target)
-    tree.ensure_tree(project, resolved)
+    tree.ensure_tree(project, resolved, allow_dirty=True)  # only reads mk/tools.mk
     compiler = builder.find_toolchain(project, resolved, BuildOptions(toolchain_dir=toolchain_dir))
     verdict = "ok" if compiler.matches else f"MISMATCH (tree asks for {compiler.required})"
     out.print(f"{compiler.gcc}  gcc {compiler.version}  {verdict}")

@@ -12,7 +12,7 @@ from wftool import doctor as doctor_checks
 from wftool.cli.progress import PERCENT, ProgressBars
 from wftool.errors import ProtocolError, WftoolError
 from wftool.fc.backup import DEFAULT_BACKUP_DIR
-from wftool.fc.board import Board, SerialBoard
+from wftool.fc.board import Board, SerialBoard, leave_open_cli
 from wftool.fc.fsp_setup import fsp_planner
 from wftool.fc.msp import MspClient
 from wftool.fc.params import (
@@ -20,9 +20,9 @@ from wftool.fc.params import (
     Plan,
     Planner,
     apply_plan,
-    configuration_session,
     plan_from_assignments,
     plan_from_file,
+    take_backup,
 )
 from wftool.flash import flasher
 from wftool.fsp.schedule import DEFAULT_RATE_HZ, RATE_HZ_MAX, RATE_HZ_MIN
@@ -59,7 +59,8 @@ def _apply(port: str | None, plan: Plan | Planner, backup_dir: Path) -> None:
     report = apply_plan(find_board(port), plan, backup_dir, log)
     _print_report(report)
     if report.mismatches:
-        raise ProtocolError(f"saved, but read back differs: {'; '.join(report.mismatches)}")
+        saved = "saved" if report.save_confirmed else "the link dropped at `save`"
+        raise ProtocolError(f"{saved}, but read back differs: {'; '.join(report.mismatches)}")
 
 
 def _print_report(report: ChangeReport) -> None:
@@ -138,11 +139,7 @@ def configure_fsp(uart: int, baud: int, rate: int, port: str | None, backup_dir:
 @backup_dir_option
 def backup(port: str | None, backup_dir: Path) -> None:
     """Save the FC's configuration (`diff all`) to a timestamped file. The FC reboots."""
-    board = find_board(port)
-    with configuration_session(board, backup_dir, log) as (session, _msp, path):
-        session.exit()
-    board.wait_back()
-    console.print(path)
+    console.print(take_backup(find_board(port), backup_dir, log))
 
 
 restore = _apply_file_command(
@@ -154,7 +151,9 @@ restore = _apply_file_command(
 @port_option
 def info(port: str | None) -> None:
     """Identify the FC over MSP: firmware, board, build."""
-    with MspClient.open(find_board(port).url) as msp:
+    board = find_board(port)
+    leave_open_cli(board, log)
+    with MspClient.open(board.url) as msp:
         fc = msp.identify()
     console.print(
         f"{fc.variant} {fc.version} (MSP API {fc.api})\n"

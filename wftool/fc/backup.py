@@ -3,32 +3,125 @@
 Betaflight 2025.12 dropped RX_MSP from the CLI's feature names (PR #13494), so a `diff all`
 of a board whose receiver is MSP does not say so. The backup therefore records the MSP
 feature mask in a header comment, which the FC ignores and `wftool restore` reads back.
+
+A backup is only written once it is proven complete (`diff_problems`): it must have the
+shape of a whole `diff all` (`cli.c` printConfig) from its version line to its final
+`save`, and the version line must describe the firmware the FC reports over MSP.
 """
 
 from __future__ import annotations
 
+import contextlib
 import re
+import tempfile
 from datetime import datetime, timezone
 from pathlib import Path
 
-from wftool.fc.msp import BoardInfo
+from wftool.errors import ProtocolError, UsageError, WftoolError
+from wftool.fc.msp import FcIdentity
 
 DEFAULT_BACKUP_DIR = Path("backups")
 _FEATURE_MASK = re.compile(r"^# wftool: feature mask (0x[0-9a-fA-F]+)", re.MULTILINE)
+_VERSION = re.compile(
+    r"# (?P<firmware>.+) / (?P<target>\S+) \((?P<identifier>[^)]*)\) (?P<version>\S+) "
+    r"(?P<date>.+) / (?P<time>\S+) \((?P<revision>\w+)\) MSP API: (?P<api>\S+)"
+)
+"""`printVersion`: "# Betaflight / SITL (SITL) 2025.12.5 Nov 23 2026 / 01:44:50 (2efac68db)
+MSP API: 1.47"."""
+_SELECTION = re.compile(r"(profile|rateprofile) (\d+)")
+_SHAPE = (
+    "batch start",
+    "defaults nosave",
+    "# restore original profile selection",
+    "# restore original rateprofile selection",
+    "# save configuration",
+)
+"""Lines every `diff all` has, in this order (`printConfig` with DUMP_ALL | DO_DIFF)."""
 
 
-def write_backup(directory: Path, board: BoardInfo, feature_mask: int, diff: str) -> Path:
-    """Write a backup file named after the board and the UTC time; return its path."""
+def check_backup_dir(directory: Path) -> None:
+    """Make sure backups can be written to DIRECTORY, before anything touches the FC."""
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=directory, prefix=".wftool-write-test-"):
+            pass
+    except OSError as exc:
+        reason = exc.strerror or str(exc)
+        raise UsageError(
+            f"cannot write backups to {directory}: {reason} (choose another --backup-dir; "
+            "the FC was not touched)"
+        ) from exc
+
+
+def diff_problems(diff: str, fc: FcIdentity) -> list[str]:
+    """Why DIFF is not a complete `diff all` of the FC that MSP describes as FC (empty: ok)."""
+    lines = diff.splitlines()
+    if lines[:1] != ["# version"] or len(lines) < 2:
+        return ["it does not start with `# version` and the firmware's version line"]
+    problems = []
+    version = _VERSION.fullmatch(lines[1])
+    if version is None:
+        problems.append(f"its version line is not Betaflight's: {lines[1]!r}")
+    else:
+        reported = {
+            "target": fc.board.target_name,
+            "identifier": fc.board.board_identifier,
+            "version": fc.version,
+            "date": fc.build.date,
+            "time": fc.build.time,
+            "api": str(fc.api),
+        }
+        differ = [name for name, value in reported.items() if version[name] != value]
+        if not version["revision"].startswith(fc.build.git_revision):
+            differ.append("revision")
+        if differ:
+            problems.append(
+                f"its version line ({', '.join(differ)}) is not what the FC reports over MSP"
+            )
+    position = 0
+    for expected in _SHAPE:
+        try:
+            position = lines.index(expected, position) + 1
+        except ValueError:
+            problems.append(f"`{expected}` is missing or out of place")
+    for kind in ("profile", "rateprofile"):
+        selections = (_SELECTION.fullmatch(line) for line in lines)
+        numbers = [int(m[2]) for m in selections if m and m[1] == kind]
+        listed = numbers[:-1]  # each profile in turn, then the one to select again
+        if not listed or listed != list(range(len(listed))):
+            problems.append(f"the {kind}s it lists are not 0, 1, … in turn: {numbers}")
+    if lines[-2:] != ["# save configuration", "save"]:
+        problems.append(f"it ends with {lines[-1]!r}, not `save`")
+    return problems
+
+
+def write_backup(directory: Path, fc: FcIdentity, feature_mask: int, diff: str) -> Path:
+    """Write a backup file named after the board and the UTC time; return its path.
+
+    Refuses (`ProtocolError`, nothing written) a DIFF that is not proven complete.
+    """
+    if problems := diff_problems(diff, fc):
+        raise ProtocolError(
+            f"the FC's `diff all` is incomplete, so no backup was written: {'; '.join(problems)}"
+        )
+    board = fc.board
     now = datetime.now(timezone.utc)
     label = re.sub(r"[^A-Za-z0-9_.-]", "_", board.board_name or board.target_name or "fc")
-    directory.mkdir(parents=True, exist_ok=True)
     path = directory / f"{label}-{now:%Y%m%d-%H%M%S-%f}.txt"
     header = (
         f"# wftool backup of {board.board_name or '-'} ({board.target_name}) "
         f"at {now:%Y-%m-%dT%H:%M:%SZ}\n"
         f"# wftool: feature mask 0x{feature_mask:08x} (from MSP; the CLI cannot name RX_MSP)\n"
     )
-    path.write_text(header + diff.rstrip("\n") + "\n")
+    partial = path.with_name(f".{path.name}.part")
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+        partial.write_text(header + diff.rstrip("\n") + "\n")
+        partial.rename(path)  # a backup file is whole or absent
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            partial.unlink(missing_ok=True)
+        raise WftoolError(f"cannot write the backup {path}: {exc.strerror or exc}") from exc
     return path
 
 

@@ -11,6 +11,13 @@ Betaflight facts (2025.12 `cli.c`, `msp_serial.c`) this is built on:
 - Every way out reboots: `save` (persist, then reboot) and `exit` (reboot, "unsaved changes
   lost"). `exit noreboot` keeps running with the unsaved changes live in RAM and arming
   blocked until the next reboot; wftool uses it only to hand the port back to MSP briefly.
+- The CLI stays open when the link drops (USB unplugged, a killed wftool): the FC then
+  ignores MSP until someone leaves its CLI. It takes printable ASCII only (other bytes are
+  dropped) and at most 255 characters a line (the rest is dropped); `#` starts a comment.
+  Ctrl-L redraws the prompt and DEL erases one character of the line being typed; on an
+  MSP port both are ignored (neither is `#` nor a possible reboot character, 48-126).
+- `diff all` ends with `# save configuration`, then `save` and the prompt; its comment
+  lines start with `# `, which looks like the prompt when the output pauses there.
 """
 
 from __future__ import annotations
@@ -30,6 +37,21 @@ SETTLE_S = 0.05
 lines inside `diff` output)."""
 EXIT_SETTLE_S = 0.1
 """After `exit noreboot`: time for the FC to finish its CLI input loop before MSP."""
+LINE_MAX = 255
+"""The longest command line the CLI keeps whole (`CLI_IN_BUFFER_SIZE` 256, with its NUL)."""
+DIFF_TAIL = "\n# save configuration\nsave"
+"""The last lines of a complete `diff all`/`dump all`."""
+DIFF_END = DIFF_TAIL.replace("\n", "\r\n").encode() + PROMPT
+"""The same as it arrives, with the prompt after it."""
+DIFF_STALL_S = 1.0
+"""How long `diff all` output may pause after a `# ` line before the reply counts as ended
+(without its end it is then incomplete)."""
+REDRAW = b"\x0c"
+"""Ctrl-L: an open CLI redraws its prompt; MSP ignores it."""
+ERASE = b"\x7f"
+"""DEL: an open CLI erases the last character typed; MSP ignores it."""
+PROBE_S = 0.5
+"""How long an open CLI may take to answer `REDRAW`."""
 
 _ERROR = re.compile(r"###ERROR IN ([^:]*): (.*?)###")
 _INTEGER = re.compile(r"[+-]?\d+")
@@ -91,6 +113,16 @@ class Setting:
         return value
 
 
+def line_problem(line: str) -> str | None:
+    """Why the CLI cannot take LINE as typed (it would drop or cut characters), or None."""
+    if bad := sorted({char for char in line if not " " <= char <= "~"}):
+        shown = ", ".join(repr(char) for char in bad)
+        return f"the FC's CLI takes printable ASCII only, not {shown}"
+    if len(line) > LINE_MAX:
+        return f"{len(line)} characters; the FC's CLI keeps at most {LINE_MAX} a line"
+    return None
+
+
 def parse_get(name: str, output: str) -> Setting:
     """Find setting `name` in the output of `get` (which lists every name containing it)."""
     for block in re.split(r"\n\s*\n", output):
@@ -120,6 +152,8 @@ class CliSession:
         self.link = link
         self.timeout = timeout
         self.url = link.port or "link"
+        self.in_cli = False
+        """Whether this session has the FC's CLI open (entered and not yet left)."""
 
     @classmethod
     def open(cls, url: str, *, timeout: float = 5.0) -> CliSession:
@@ -132,26 +166,32 @@ class CliSession:
             raise
         return session
 
-    def close(self) -> None:
-        self.link.close()
-
     def enter(self) -> None:
         """Switch the port from MSP to the CLI and wait for the prompt."""
         with port_errors(self.url):
             self.link.reset_input_buffer()
             self.link.write(b"#\r\n")
         self._read_reply("#", self.timeout)
+        self.in_cli = True
 
     def run(self, command: str, timeout: float | None = None) -> str:
         """Run one command; return its output (echo and prompt removed, `\\n` line ends).
 
         Raises `CliCommandError` if the FC printed an `###ERROR …###`.
         """
-        if "\n" in command or "\r" in command:
-            raise ValueError(f"one command per call: {command!r}")
+        self._send(command)
+        reply = self._read_reply(command, self.timeout if timeout is None else timeout)
+        return self._checked(command, reply)
+
+    def _send(self, command: str) -> None:
+        if problem := line_problem(command):
+            raise ValueError(f"{command!r}: {problem}")
         with port_errors(self.url):
             self.link.write(command.encode("ascii") + b"\n")
-        output = self._read_reply(command, self.timeout if timeout is None else timeout)
+
+    @staticmethod
+    def _checked(command: str, output: str) -> str:
+        """OUTPUT, unless the FC printed an error in it."""
         if errors := _ERROR.findall(output):
             details = [
                 line for line in output.splitlines() if line.strip() and not _ERROR.search(line)
@@ -161,13 +201,19 @@ class CliSession:
             raise CliCommandError(command, message + suffix)
         return output
 
-    def _read_reply(self, command: str, timeout: float) -> str:
-        text = self._collect(command, timeout)[: -len(PROMPT)].replace("\r\n", "\n")
+    def _read_reply(
+        self, command: str, timeout: float, until: bytes | None = None, settle: float = SETTLE_S
+    ) -> str:
+        text = self._collect(command, timeout, until, settle)
+        text = text.removesuffix(PROMPT.decode()).replace("\r\n", "\n")
         echo, _, rest = text.lstrip("\n").partition("\n")
         return (rest if echo.strip() == command else text).strip("\n")
 
-    def _collect(self, command: str, timeout: float, until: bytes | None = None) -> str:
-        """Read until `until` arrives or a prompt ends the output and the line goes quiet."""
+    def _collect(
+        self, command: str, timeout: float, until: bytes | None = None, settle: float = SETTLE_S
+    ) -> str:
+        """Read until `until` arrives or a prompt ends the output and the line stays quiet
+        for `settle` seconds."""
         received = bytearray()
         deadline = time.monotonic() + timeout
         last_data = time.monotonic()
@@ -180,7 +226,7 @@ class CliSession:
                     last_data = now
                     if until is not None and until in received:
                         break
-                elif received.endswith(PROMPT) and now - last_data >= SETTLE_S:
+                elif received.endswith(PROMPT) and now - last_data >= settle:
                     break
                 if now > deadline:
                     raise ProtocolError(
@@ -198,39 +244,85 @@ class CliSession:
             raise CliCommandError(f"set {name} = {value}", f"unexpected reply {output!r}")
 
     def diff_all(self) -> str:
-        """`diff all`: every non-default setting as a replayable CLI script."""
-        return self.run("diff all", timeout=max(self.timeout, 15.0))
+        """`diff all`: every non-default setting as a replayable CLI script.
 
-    def save(self) -> None:
-        """Persist the configuration; the FC reboots and the link is closed."""
-        self._leave("save")
+        The reply is read to its end (`DIFF_END`), through pauses after `# ` lines; one that
+        stops short of it is refused, so nothing incomplete passes for a backup.
+        """
+        command = "diff all"
+        self._send(command)
+        timeout = max(self.timeout, 15.0)
+        output = self._checked(
+            command, self._read_reply(command, timeout, until=DIFF_END, settle=DIFF_STALL_S)
+        )
+        if not output.endswith(DIFF_TAIL):
+            last = output.rstrip().rpartition("\n")[2] or "nothing"
+            raise ProtocolError(
+                f"the FC's `diff all` output on {self.url} stopped after {last!r}, short of "
+                "its end (`# save configuration`, `save`): incomplete"
+            )
+        return output
 
-    def exit(self) -> None:
-        """Leave without saving: the FC reboots, discarding every unsaved change."""
-        self._leave("exit")
+    def save(self) -> bool:
+        """Persist the configuration; the FC reboots and the link is closed.
+
+        True once the FC confirmed (`Rebooting`); False if the link dropped first, when
+        nobody knows yet whether the FC got `save`: read the settings back to find out.
+        """
+        return self._leave("save")
+
+    def exit(self) -> bool:
+        """Leave without saving: the FC reboots, discarding every unsaved change.
+
+        True once the FC confirmed; False if the link dropped first (see `save`).
+        """
+        return self._leave("exit")
 
     def exit_noreboot(self) -> None:
         """Hand the port back to MSP without rebooting (unsaved changes stay live in RAM)."""
-        with port_errors(self.url):
-            self.link.write(b"exit noreboot\n")
+        self._send("exit noreboot")
         self._collect("exit noreboot", self.timeout, until=b"no reboot")
+        self.in_cli = False
         # Betaflight's cliProcess() goes on reading the input after `exit`: bytes that arrive
         # before it returns (an MSP request sent at once) are eaten as CLI characters.
         time.sleep(EXIT_SETTLE_S)
 
-    def _leave(self, command: str) -> None:
-        """Send a command that ends in a reset; return once the FC is going down.
+    def _leave(self, command: str) -> bool:
+        """Send a command that ends in a reset; True once the FC says it is going down,
+        False if the link dropped before it did (the session is closed either way).
 
         If the FC refuses instead (e.g. `save` after errors inside `batch start`), the session
         stays open and `CliCommandError` says why.
         """
         try:
-            with port_errors(self.url):
-                self.link.write(command.encode("ascii") + b"\n")
+            self._send(command)
             reply = self._collect(command, self.timeout, until=b"Rebooting")
         except PortError:
-            reply = "Rebooting"  # the link dropped with the reset before the word arrived
+            self.close()
+            return False
         if "Rebooting" not in reply:
             errors = "; ".join(text for _, text in _ERROR.findall(reply))
             raise CliCommandError(command, f"refused: {errors or reply.strip()}")
         self.close()
+        return True
+
+    def close(self) -> None:
+        self.in_cli = False
+        self.link.close()
+
+
+def cli_is_open(link: serial.SerialBase) -> bool:
+    """Whether the FC on LINK sits in its CLI (and so ignores MSP): an open CLI answers
+    `REDRAW` with its prompt; MSP ignores it. Whatever was half typed is erased."""
+    url = link.port or "link"
+    with port_errors(url):
+        link.reset_input_buffer()
+        link.write(REDRAW)
+        received = bytearray()
+        deadline = time.monotonic() + PROBE_S
+        while not received.endswith(PROMPT) and time.monotonic() < deadline:
+            received += link.read(max(1, link.in_waiting))
+        if not received.endswith(PROMPT):
+            return False
+        link.write(ERASE * (LINE_MAX + 1))
+    return True

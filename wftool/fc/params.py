@@ -1,12 +1,17 @@
 """The safe parameter workflow behind `wftool set`, `config apply`, `restore`, `configure fsp`.
 
-1. Back up `diff all` (plus the MSP feature mask) before anything else.
+0. Before touching the FC: every command is one the CLI can carry (printable ASCII, one
+   line, not too long) and the backup directory is writable. An FC found sitting in its
+   CLI (an earlier session interrupted) is first taken out of it with `exit`.
+1. Back up `diff all` (plus the MSP feature mask), proven complete, before anything else.
 2. Validate every command with the FC: each `set` against the range/values `get NAME`
    reports, `feature`/`serial` against the FC's own lists, profile switches by trying them.
    Any problem → the FC reboots untouched and `ParameterError` lists every problem.
-3. Apply everything; if the FC rejects a command midway, leave with `exit` (reboot, which
-   drops every unsaved change) — nothing persists. Only when all succeeded: `save`.
-4. Read every setting back after the reboot, for the before/after report.
+3. Apply everything; if anything fails midway (the FC rejects a command, the link drops,
+   Ctrl-C), leave with `exit` (reboot, which drops every unsaved change) — nothing
+   persists. Only when all succeeded: `save`.
+4. Read every setting back after the reboot, for the before/after report. A `save` the FC
+   did not confirm (the link dropped) counts as saved only if the read-back says so.
 """
 
 from __future__ import annotations
@@ -21,13 +26,12 @@ from wftool.errors import (
     CliCommandError,
     ParameterError,
     PortError,
-    ProtocolError,
     UsageError,
     WftoolError,
 )
-from wftool.fc.backup import feature_mask_of, write_backup
-from wftool.fc.board import Board
-from wftool.fc.cli_session import CliSession, Setting
+from wftool.fc.backup import check_backup_dir, feature_mask_of, write_backup
+from wftool.fc.board import Board, leave_open_cli, wait_after_drop
+from wftool.fc.cli_session import CliSession, Setting, line_problem
 from wftool.fc.msp import RECEIVER_FEATURES, MspClient
 from wftool.fc.transport import open_port
 from wftool.progress import Log, quiet
@@ -59,6 +63,20 @@ class Command:
     text: str
     origin: str = ""
     """"file.txt:12", or empty for command-line arguments."""
+
+    def __post_init__(self) -> None:
+        """Refuse, before anything is sent, what the FC's CLI would mangle."""
+        if problem := line_problem(self.text):
+            raise UsageError(f"{self.where}{self.text!r}: {problem} (nothing was changed)")
+        if self.verb == "set":
+            if "=" not in self.text:
+                raise UsageError(f"{self.where}expected `set NAME = VALUE`")
+            name, value = self.assignment()
+            if not name or not value or value.startswith("="):
+                raise UsageError(
+                    f"{self.where}`{self.text}`: expected `set NAME = VALUE` with one '=' "
+                    "between a name and a value"
+                )
 
     @property
     def where(self) -> str:
@@ -109,7 +127,7 @@ def plan_from_assignments(assignments: Sequence[str]) -> Plan:
     commands = []
     for text in assignments:
         name, equals, value = text.partition("=")
-        if not equals or not name.strip() or not value.strip():
+        if not equals or not name.strip() or not value.strip() or value.startswith("="):
             raise UsageError(f"expected NAME=VALUE, got {text!r}")
         commands.append(set_command(name.strip(), value.strip()))
     if not commands:
@@ -170,8 +188,6 @@ def parse_cli_script(text: str, name: str) -> Plan:
                 f"{command.where}only `defaults nosave` is allowed (plain `defaults` saves "
                 "and reboots)"
             )
-        if verb == "set" and "=" not in command.text:
-            raise UsageError(f"{command.where}expected `set NAME = VALUE`")
         commands.append(command)
     if not commands:
         raise UsageError(f"{name}: no configuration commands in it")
@@ -205,6 +221,8 @@ class ChangeReport:
     features: tuple[int, int] | None = None
     """(mask before, mask after) when the plan switched features over MSP."""
     features_ok: bool = True
+    save_confirmed: bool = True
+    """Whether the FC confirmed `save`; if the link dropped first, only the rows tell."""
 
     @property
     def mismatches(self) -> list[str]:
@@ -218,21 +236,37 @@ class ChangeReport:
 def configuration_session(
     board: Board, backup_dir: Path, log: Log = quiet
 ) -> Iterator[tuple[CliSession, MspClient, Path]]:
-    """Connect, take the backup, and yield the CLI session, the MSP client and the backup path.
+    """Connect, take a backup proven complete, and yield the CLI session, the MSP client and
+    the backup path.
 
-    The caller must leave the session (`save`/`exit`) and wait for the board.
+    The caller must leave the session (`save`/`exit`) and wait for the board. If anything
+    fails while the CLI is still open (here or in the caller's block), the FC leaves it with
+    `exit`, which reboots it and drops every unsaved change.
     """
+    check_backup_dir(backup_dir)
+    leave_open_cli(board, log)
     link = open_port(board.url, timeout=0.05)
+    session = CliSession(link)
     try:
         msp = MspClient(link)
-        info, mask = msp.board_info(), msp.features()
-        session = CliSession(link)
+        fc, mask = msp.identify(), msp.features()
         session.enter()
-        backup = write_backup(backup_dir, info, mask, session.diff_all())
+        backup = write_backup(backup_dir, fc, mask, session.diff_all())
         log(f"backup of the current configuration: {backup}")
         yield session, msp, backup
+    except BaseException:
+        if session.in_cli:
+            leave_without_saving(session, board, log)
+        raise
     finally:
         link.close()
+
+
+def take_backup(board: Board, backup_dir: Path, log: Log = quiet) -> Path:
+    """`wftool backup`: the proven-complete backup alone; the FC leaves its CLI (reboots)."""
+    with configuration_session(board, backup_dir, log) as (session, _msp, backup):
+        leave_without_saving(session, board, log)
+    return backup
 
 
 def apply_plan(
@@ -241,6 +275,9 @@ def apply_plan(
     """Run the whole safe workflow; see the module docstring."""
     with configuration_session(board, backup_dir, log) as (session, msp, backup):
         features_before = None
+        nothing_saved = (
+            f"— nothing was saved; the FC drops unsaved changes on reboot (backup: {backup})"
+        )
         try:
             plan = plan(session) if callable(plan) else plan
             for note in plan.notes:
@@ -253,28 +290,36 @@ def apply_plan(
                 features_before = msp.features()
                 msp.set_features(plan.features.applied_to(features_before))
                 session.enter()
-            session.save()
+            confirmed = session.save()
         except ParameterError:
-            _leave_without_saving(session, board, log)
+            leave_without_saving(session, board, log)
             raise
-        except (ProtocolError, PortError) as exc:
-            _leave_without_saving(session, board, log)
-            raise _with_context(
-                exc,
-                f"— nothing was saved; the FC drops unsaved changes on reboot (backup: {backup})",
-            ) from exc
-    log("saved; waiting for the FC to reboot")
-    board.wait_back()
+        except WftoolError as exc:
+            leave_without_saving(session, board, log)
+            raise _with_context(exc, nothing_saved) from exc
+        except BaseException:
+            leave_without_saving(session, board, log)
+            log(f"interrupted {nothing_saved}")
+            raise
+    if confirmed:
+        log("saved; waiting for the FC to reboot")
+        board.wait_back()
+    else:
+        log("the link dropped at `save` before the FC confirmed it; looking for the FC")
+        if wait_after_drop(board, log):
+            raise PortError(f"the link dropped before the FC got `save` {nothing_saved}")
     after, features_after = _read_back(board, plan)
     rows = [
         ChangeRow(name, scope, before.value, requested, after.get((scope, name), "?"))
         for (scope, name), (before, requested) in changes.items()
     ]
-    report = ChangeReport(backup, rows)
+    report = ChangeReport(backup, rows, save_confirmed=confirmed)
     if plan.features is not None and features_before is not None:
         expected = plan.features.applied_to(features_before)
         report.features = (features_before, features_after)
         report.features_ok = (features_after ^ expected) & RECEIVER_FEATURES == 0
+    if not confirmed and not report.mismatches:
+        log("saved: the FC did not confirm `save`, but every setting reads back as asked")
     return report
 
 
@@ -285,15 +330,20 @@ def _with_context(exc: WftoolError, context: str) -> WftoolError:
     return type(exc)(f"{exc} {context}")
 
 
-def _leave_without_saving(session: CliSession, board: Board, log: Log) -> None:
+def leave_without_saving(session: CliSession, board: Board, log: Log = quiet) -> None:
     """`exit` reboots the FC, which is Betaflight's only way to drop unsaved changes.
 
+    Works from the MSP side of `exit noreboot` too (the CLI is entered again to leave it).
     Problems here are logged, not raised: the caller is already reporting the error that
     made it leave.
     """
     try:
-        session.exit()
-        board.wait_back()
+        if not session.in_cli:
+            session.enter()
+        if session.exit():
+            board.wait_back()
+        else:
+            wait_after_drop(board, log)
     except WftoolError as exc:
         log(f"after leaving the CLI without saving: {exc}")
 

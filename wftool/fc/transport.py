@@ -8,13 +8,15 @@ surfaces as one `PortError` with a one-line message instead of a pyserial traceb
 from __future__ import annotations
 
 import contextlib
+import re
 from collections.abc import Iterator
 from dataclasses import dataclass
+from urllib.parse import urlsplit
 
 import serial
 from serial.tools import list_ports
 
-from wftool.errors import PortError
+from wftool.errors import PortError, UsageError
 
 
 @dataclass(frozen=True)
@@ -32,14 +34,20 @@ STM32_VCP = UsbId(0x0483, 0x5740)
 """A Betaflight FC running its firmware: the STM32 USB virtual COM port."""
 STM32_DFU = UsbId(0x0483, 0xDF11)
 """An STM32 in its ROM DFU bootloader."""
+NETWORK_SCHEMES = {"socket": 5761, "rfc2217": 2217}
+"""pyserial URLs that name a TCP host and port, with an example port for messages."""
 
 
 def open_port(url: str, baudrate: int = 115200, timeout: float = 1.0) -> serial.SerialBase:
     """Open a device path or pyserial URL (`socket://`, `rfc2217://`, …) for reading and writing.
 
     `timeout` is the read timeout in seconds; writes time out after the same interval so a
-    stalled peer cannot hang the caller.
+    stalled peer cannot hang the caller. A malformed URL or baud rate is a `UsageError`.
     """
+    if problem := url_problem(url):
+        raise UsageError(f"cannot open {url}: {problem}")
+    if baudrate <= 0:
+        raise UsageError(f"cannot open {url}: the baud rate must be positive, not {baudrate}")
     try:
         return serial.serial_for_url(
             url, baudrate=baudrate, timeout=timeout, write_timeout=max(timeout, 1.0)
@@ -57,6 +65,26 @@ def port_errors(url: str) -> Iterator[None]:
         raise PortError(f"lost connection to {url}: {_reason(exc)}") from exc
 
 
+def url_problem(url: str) -> str | None:
+    """What is wrong with a network URL (`socket://HOST:PORT`, `rfc2217://…`), or None.
+
+    pyserial's own complaints about these are cryptic ("'debug|info|warning|error'").
+    """
+    parts = urlsplit(url)
+    if parts.scheme not in NETWORK_SCHEMES:
+        return None
+    example = f"{parts.scheme}://127.0.0.1:{NETWORK_SCHEMES[parts.scheme]}"
+    try:
+        port = parts.port
+    except ValueError:
+        port = -1
+    if not parts.hostname:
+        return f"no host in it; expected {parts.scheme}://HOST:PORT, e.g. {example}"
+    if port is None or not 0 < port < 65536:
+        return f"the port must be a number from 1 to 65535, e.g. {example}"
+    return None
+
+
 def usb_ports(usb_id: UsbId) -> list[str]:
     """Device paths of the serial ports with this USB id, sorted for a stable choice."""
     return sorted(
@@ -67,9 +95,16 @@ def usb_ports(usb_id: UsbId) -> list[str]:
 
 
 def _reason(exc: BaseException) -> str:
-    """The shortest faithful description of an OS/pyserial error."""
-    if isinstance(exc, OSError) and exc.strerror:
-        return exc.strerror
-    text = str(exc).strip()
-    # pyserial wraps OSErrors as "[Errno 2] could not open port /dev/x: [Errno 2] No such …"
-    return text.rsplit("] ", 1)[-1] if text.startswith("[Errno") else text or type(exc).__name__
+    """The shortest faithful description of an OS/pyserial error.
+
+    pyserial wraps errors as "[Errno 2] could not open port /dev/x: [Errno 2] No such …"
+    or "Could not open port URL: [Errno 111] Connection refused"; the reason is the tail.
+    """
+    text = (exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)).strip()
+    text = _ERRNO.sub("", text)
+    if text.lower().startswith("could not open port ") and ": " in text:
+        text = _ERRNO.sub("", text.split(": ", 1)[1])
+    return text or type(exc).__name__
+
+
+_ERRNO = re.compile(r"^\[Errno -?\d+\] ")

@@ -168,8 +168,8 @@ def prepare(
     for define in options.flags.defines:
         if not _DEFINE.match(define):
             raise UsageError(f"--define {define!r}: expected NAME or NAME=VALUE (no spaces/quotes)")
-    tree.ensure_tree(project, target, clean=options.clean)
-    patches.apply(project, force=options.clean)
+    tree.ensure_tree(project, target, allow_dirty=options.clean)
+    patches.apply(project, force=options.clean, override="pass --clean")
     # Betaflight's make insists on CONFIG_DIR/configs/, even for SITL (git keeps no empty dir).
     (project.config_dir / "configs").mkdir(parents=True, exist_ok=True)
     warnings = []
@@ -247,6 +247,8 @@ def install_toolchain(
     URL replaces the tree's download address (a lab mirror); the file is still checked
     against the SHA-256 pinned for its name, or SHA256.
     """
+    if sha256 is not None:
+        sha256 = toolchain.parse_sha256(sha256)  # bad input is refused before any fetch
     if url is not None:
         release = toolchain.SdkRelease(url, None)
     else:

@@ -11,6 +11,9 @@ from wftool.errors import BuildError
 
 # Fixed settings so that git's output does not depend on a user's configuration or language.
 _STABLE_CONFIG = ("-c", "advice.detachedHead=false", "-c", "core.quotePath=false")
+TEXT_ERRORS = "surrogateescape"
+"""How git's bytes become text and back: patches and commits need not be UTF-8 (a Latin-1
+comment), and every byte must survive the round trip (`read_text(errors=TEXT_ERRORS)`)."""
 
 
 def git(
@@ -22,7 +25,8 @@ def git(
     check: bool = True,
     error: type[BuildError] = BuildError,
 ) -> subprocess.CompletedProcess[str]:
-    """Run `git ARGS` in CWD and return the finished process (text mode).
+    """Run `git ARGS` in CWD and return the finished process (text mode: UTF-8, any other
+    byte kept as a surrogate, see TEXT_ERRORS).
 
     With check=True a non-zero exit raises ERROR carrying git's own last message line.
     """
@@ -34,7 +38,8 @@ def git(
             env=full_env,
             input=input,
             capture_output=True,
-            text=True,
+            encoding="utf-8",
+            errors=TEXT_ERRORS,
             check=False,
         )
     except FileNotFoundError as exc:

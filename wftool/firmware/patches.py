@@ -26,7 +26,7 @@ from pathlib import Path
 
 from wftool.errors import PatchError
 from wftool.firmware import tree
-from wftool.firmware.git import git, git_out
+from wftool.firmware.git import TEXT_ERRORS, git, git_out
 from wftool.firmware.project import Project
 
 MANAGED_REF = "refs/wftool/managed"
@@ -128,7 +128,7 @@ def series_commits(repo: Path, base: str, patches: list[Patch]) -> list[str]:
             info = git(
                 ["mailinfo", str(message_file), str(diff_file)],
                 repo,
-                input=patch.path.read_text(errors="surrogateescape"),
+                input=patch.path.read_text(errors=TEXT_ERRORS),
                 error=PatchError,
             ).stdout
             header = dict(line.split(": ", 1) for line in info.splitlines() if ": " in line)
@@ -144,7 +144,7 @@ def series_commits(repo: Path, base: str, patches: list[Patch]) -> list[str]:
             # --missing-ok: in the partial clone most blobs are absent (and some, too big for
             # the mirror, cannot be fetched at all); a tree only names them.
             tree_id = git_out(["write-tree", "--missing-ok"], repo, env=index, error=PatchError)
-            body = message_file.read_text().strip()
+            body = message_file.read_text(errors=TEXT_ERRORS).strip()
             subject = header.get("Subject", patch.path.stem)
             message = f"{subject}\n\n{body}\n" if body else f"{subject}\n"
             identity = {
@@ -178,7 +178,9 @@ def status(project: Project) -> SeriesStatus:
         expected = (series_commits(project.tree, pin, patches) or [pin])[-1]
     except PatchError as exc:
         expected, problem = "", str(exc)
-    series_ids = [_patch_id(project.tree, patch.path.read_bytes()) for patch in patches]
+    series_ids = [
+        _patch_id(project.tree, patch.path.read_text(errors=TEXT_ERRORS)) for patch in patches
+    ]
     head_ids = _commit_patch_ids(project.tree, pin, head)
     managed = git(["rev-parse", "-q", "--verify", MANAGED_REF], project.tree, check=False)
     replaceable = head in (pin, managed.stdout.strip()) or (
@@ -196,17 +198,24 @@ def status(project: Project) -> SeriesStatus:
     )
 
 
-def apply(project: Project, *, force: bool = False) -> bool:
+def apply(project: Project, *, force: bool = False, override: str = "pass --force") -> bool:
     """Put betaflight/ at pin + series; return whether anything changed.
 
     Refuses a dirty tree and commits that are not the series (export them first), unless
-    FORCE. On a patch that does not apply, resets to the pristine pin and raises PatchError.
+    FORCE (OVERRIDE says how on the command line: "pass --force"). Whether the series applies is
+    checked first, so a series that does not apply raises PatchError before anything is
+    discarded; a tree with nothing to lose is then left at the pristine pin.
     """
     current = status(project)
     if current.head == current.expected and not current.dirty:
         _mark_managed(project, current.head)
         return False
-    _require_replaceable(current, force, "apply the series")
+    if current.problem:
+        if current.replaceable and not current.dirty:
+            _checkout(project, current.pin)
+            raise PatchError(f"{current.problem}; betaflight/ is back at the pristine pin")
+        raise PatchError(f"{current.problem}; betaflight/ is left as it was, nothing discarded")
+    _require_replaceable(current, force, "apply the series", override)
     if current.dirty:
         tree.discard_changes(project)
     try:
@@ -218,13 +227,13 @@ def apply(project: Project, *, force: bool = False) -> bool:
     return True
 
 
-def reset(project: Project, *, force: bool = False) -> bool:
+def reset(project: Project, *, force: bool = False, override: str = "pass --force") -> bool:
     """Return betaflight/ to the pristine pin; return whether anything changed."""
     current = status(project)
     if current.head == current.pin and not current.dirty:
         _mark_managed(project, current.pin)
         return False
-    _require_replaceable(current, force, "reset")
+    _require_replaceable(current, force, "reset", override)
     if current.dirty:
         tree.discard_changes(project)
     _checkout(project, current.pin)
@@ -277,17 +286,18 @@ def _require_tree(project: Project) -> None:
         )
 
 
-def _require_replaceable(current: SeriesStatus, force: bool, action: str) -> None:
+def _require_replaceable(current: SeriesStatus, force: bool, action: str, override: str) -> None:
     """Refuse to lose work: uncommitted changes, or commits that are not the series."""
     if force or (current.replaceable and not current.dirty):
         return
     if current.dirty:
         detail = f"uncommitted changes ({current.dirty[0]}, ...)"
+        keep = "commit them and run `wftool patches export` to keep them"
     else:
         detail = f"commits on top of the pin that are not the series (HEAD {current.head[:9]})"
+        keep = "run `wftool patches export` to keep them"
     raise PatchError(
-        f"betaflight/ has {detail}; run `wftool patches export` to keep them, "
-        f"or pass --clean/--force to {action} anyway"
+        f"betaflight/ has {detail}; {keep}, or {override} to {action} anyway (which discards them)"
     )
 
 
@@ -307,9 +317,9 @@ def _descends_from(repo: Path, ancestor: str, commit: str) -> bool:
     return merge_base.returncode == 0
 
 
-def _patch_id(repo: Path, diff: bytes) -> str:
+def _patch_id(repo: Path, diff: str) -> str:
     """git's stable patch-id of one patch (the same change gives the same id)."""
-    output = git(["patch-id", "--stable"], repo, input=diff.decode(errors="surrogateescape")).stdout
+    output = git(["patch-id", "--stable"], repo, input=diff).stdout
     return output.split()[0] if output.strip() else ""
 
 
@@ -319,8 +329,7 @@ def _commit_patch_ids(repo: Path, base: str, head: str) -> list[str]:
         return []
     commits = git_out(["rev-list", "--reverse", f"{base}..{head}"], repo).split()
     return [
-        _patch_id(repo, git(["show", "--format=", "-p", commit], repo).stdout.encode())
-        for commit in commits
+        _patch_id(repo, git(["show", "--format=", "-p", commit], repo).stdout) for commit in commits
     ]
 
 

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import requests
 
-from wftool.errors import ToolchainError
+from wftool.errors import ToolchainError, UsageError
 from wftool.progress import Progress, no_progress
 
 TOOLCHAIN_ENV = "WFTOOL_TOOLCHAIN"
@@ -54,6 +54,9 @@ _SDK_BLOCK = re.compile(
     r"(?:\s*DL_CHECKSUM\s*:?=\s*(?P<md5>[0-9a-fA-F]{32}))?"
 )
 _ARCHIVE_SUFFIXES = (".tar.xz", ".tar.bz2", ".tar.gz", ".zip")
+_SHA256 = re.compile(r"[0-9a-f]{64}")
+ARCHIVE_RECORD = ".wftool-archive.sha256"
+"""In an installed toolchain: the SHA-256 of the archive it was unpacked from."""
 _RELEASE_VERSION = re.compile(r"^arm-gnu-toolchain-(\d+)\.(\d+)\.rel(\d+)-")
 """ARM's release X.Y.relN ships gcc X.Y.N."""
 
@@ -184,6 +187,7 @@ def find_arm_toolchain(
         cached = cache_dir() / installed / "bin" / ARM_GCC if installed else None
         on_path = shutil.which(ARM_GCC)
         if cached is not None and cached.is_file():
+            _check_installed(cached.parent.parent, _pinned_for(cached.parent.parent.name))
             gcc = cached
         elif on_path:
             gcc = Path(on_path)
@@ -210,6 +214,14 @@ def host_toolchain() -> Toolchain:
     return Toolchain(Path(gcc), gcc_version(Path(gcc), "-dumpfullversion"), None)
 
 
+def parse_sha256(text: str) -> str:
+    """A SHA-256 given by a user, lower-cased; anything but 64 hex digits is a UsageError."""
+    value = text.strip().lower()
+    if not _SHA256.fullmatch(value):
+        raise UsageError(f"--sha256 {text!r}: expected 64 hexadecimal digits")
+    return value
+
+
 def install(
     release: SdkRelease,
     *,
@@ -224,10 +236,12 @@ def install(
     The download resumes from a previous `.part` (HTTP Range). The archive must match SHA256
     (default: the pinned value for its file name; none pinned and none given is refused) and
     the tree's MD5; a mismatching download is deleted. Unpacking happens in a scratch
-    directory that is renamed into place, so the cache never holds a half toolchain.
+    directory that is renamed into place, so the cache never holds a half toolchain. The
+    installed toolchain records its archive's SHA-256; one already in the cache is used only
+    if that record matches.
     """
     cache = cache or cache_dir()
-    expected = (sha256 or PINNED_SHA256.get(release.file_name) or "").lower()
+    expected = parse_sha256(sha256) if sha256 else PINNED_SHA256.get(release.file_name, "")
     if not expected:
         raise ToolchainError(
             f"no SHA-256 is pinned for {release.file_name}; check ARM's published "
@@ -235,6 +249,7 @@ def install(
         )
     destination = cache / release.directory_name
     if destination.is_dir():
+        _check_installed(destination, expected)
         return destination
     downloads = cache / ".downloads"
     downloads.mkdir(parents=True, exist_ok=True)
@@ -254,11 +269,46 @@ def install(
         _unpack(part, release.file_name, scratch)
         entries = list(scratch.iterdir())
         root = entries[0] if len(entries) == 1 and entries[0].is_dir() else scratch
+        (root / ARCHIVE_RECORD).write_text(f"{expected}  {release.file_name}\n")
         root.rename(destination)
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
     part.unlink()
     return destination
+
+
+def _pinned_for(directory_name: str) -> str | None:
+    """The pinned SHA-256 of the release that installs to DIRECTORY_NAME, if any."""
+    return next(
+        (
+            sha256
+            for name, sha256 in PINNED_SHA256.items()
+            if SdkRelease(name, None).directory_name == directory_name
+        ),
+        None,
+    )
+
+
+def _check_installed(directory: Path, expected: str | None) -> None:
+    """Refuse a cached toolchain not unpacked from the archive with SHA-256 EXPECTED (None:
+    from any archive `install` verified)."""
+    record = directory / ARCHIVE_RECORD
+    try:
+        recorded = record.read_text().split()[0]
+    except (OSError, IndexError):
+        recorded = ""
+    if recorded and recorded == (expected or recorded):
+        return
+    found = (
+        f"was unpacked from an archive with SHA-256 {recorded}"
+        if recorded
+        else "has no record of the archive it came from"
+    )
+    raise ToolchainError(
+        f"the cached toolchain {directory} {found}"
+        + (f", not {expected}" if expected else "")
+        + "; delete that directory and run `wftool toolchain install` again"
+    )
 
 
 def _download(url: str, part: Path, progress: Progress) -> None:

@@ -116,25 +116,25 @@ def ensure_commit(repo: Path, commit: str) -> None:
     )
 
 
-def ensure_tree(project: Project, target: Target, *, clean: bool = False) -> None:
-    """Make betaflight/ a clean checkout holding the pinned commit and what TARGET needs.
+def ensure_tree(project: Project, target: Target, *, allow_dirty: bool = False) -> None:
+    """Make betaflight/ a checkout holding the pinned commit and what TARGET needs.
 
-    Fetches the tree when absent. A dirty tree is refused, or with CLEAN reset. Which commit
-    ends up checked out (the pin plus the series) is the patches module's business.
+    Fetches the tree when absent. A dirty tree is refused, unless ALLOW_DIRTY: then the
+    caller decides (`patches.apply` discards changes only once the series is known to
+    apply). Which commit ends up checked out (the pin plus the series) is the patches
+    module's business.
     """
     pin = pinned_commit(project)
     if not is_checked_out(project):
         fetch_tree(project, pin, target)
         return
     dirty = dirty_paths(project)
-    if dirty:
-        if not clean:
-            shown = ", ".join(dirty[:3]) + (", ..." if len(dirty) > 3 else "")
-            raise TreeError(
-                f"betaflight/ has uncommitted changes ({shown}); commit them and run "
-                "`wftool patches export`, or pass --clean to discard them"
-            )
-        discard_changes(project)
+    if dirty and not allow_dirty:
+        shown = ", ".join(dirty[:3]) + (", ..." if len(dirty) > 3 else "")
+        raise TreeError(
+            f"betaflight/ has uncommitted changes ({shown}); commit them and run "
+            "`wftool patches export`, or pass --clean to discard them"
+        )
     ensure_commit(project.tree, pin)
     widen_checkout(project, pin, target)
 

@@ -48,13 +48,18 @@ def run_unit_tests(project: Project, names: list[str] | None = None) -> list[Uni
         raise ToolchainError(
             f"Betaflight's unit tests need {' and '.join(missing)} (Debian: clang)"
         )
-    tree.ensure_tree(project, resolve_target(project, SITL))
-    patches.apply(project)
+    tree.ensure_tree(project, resolve_target(project, SITL), allow_dirty=True)
+    patches.apply(project, override="run `wftool patches apply --force`")
     _check_out_tests(project.tree)
     runs = []
     for name in names if names is not None else series_tests(project):
         proc = subprocess.run(
-            ["make", name], cwd=project.tree, capture_output=True, text=True, check=False
+            ["make", name],
+            cwd=project.tree,
+            capture_output=True,
+            text=True,
+            errors="replace",
+            check=False,
         )
         runs.append(UnitTestRun(name, proc.returncode == 0, proc.stdout + proc.stderr))
     return runs

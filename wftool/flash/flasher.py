@@ -1,8 +1,9 @@
 """`wftool flash`: identify, back up, reboot to DFU, write, confirm — config sector untouched.
 
-Order matters: nothing is erased before the configuration backup exists, and every failure
-after that names the backup and the next step. Success means the firmware that comes back
-reports a build (date, time, git revision) that is in the image just written.
+Order matters: an image that does not fit the FC is refused (`UsageError`, exit 2) before
+anything happens; nothing is erased before a configuration backup proven complete exists;
+every failure after that names the backup and the next step. Success means the firmware
+that comes back reports a build (date, time, git revision) that is in the image just written.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from pathlib import Path
 from intelhex import IntelHex
 
 from wftool.errors import FlashError, UsageError, WftoolError
-from wftool.fc.board import Board
+from wftool.fc.board import Board, leave_open_cli
 from wftool.fc.msp import BoardInfo, BuildInfo, FcIdentity, MspClient, RebootMode
 from wftool.fc.params import ChangeReport, apply_plan, configuration_session, plan_from_file
 from wftool.firmware.manifest import FILE_NAME, Manifest
@@ -72,7 +73,7 @@ class Firmware:
         for name in names:
             if name in MCU_FLASH:
                 return MCU_FLASH[name]
-        raise FlashError(
+        raise UsageError(
             f"wftool knows the flash layout of {', '.join(MCU_FLASH)} only "
             f"(this is for {', '.join(names) or 'an unknown MCU'})"
         )
@@ -156,6 +157,7 @@ def flash_firmware(
     backend = backend or DfuBackend()
     before = None
     if not no_reboot:
+        leave_open_cli(board, log)
         with MspClient.open(board.url) as msp:
             before = msp.identify()
     firmware = resolve_firmware(firmware_path, build_dir, before.board if before else None)
@@ -166,7 +168,7 @@ def flash_firmware(
         log(f"firmware: {firmware.path}")
     if before and (problems := firmware.compatibility_problems(before.board)):
         if not force:
-            raise FlashError(
+            raise UsageError(
                 f"refusing to flash {firmware.path.name}: {'; '.join(problems)} (--force overrides)"
             )
         log(f"--force: flashing despite: {'; '.join(problems)}")
@@ -174,12 +176,12 @@ def flash_firmware(
     regions = write_regions(firmware.image, mcu.layout)
     erased = erased_sectors(regions, mcu.layout)
     if mcu.config_sector in erased and not full_erase:
-        raise FlashError(
+        raise UsageError(
             f"{firmware.path.name} covers the config sector at 0x{mcu.config_address:08x} "
             "(a .bin does; use the .hex), or pass --full-erase to wipe the configuration"
         )
     if no_reboot and full_erase and not force:
-        raise FlashError(
+        raise UsageError(
             "--full-erase with --no-reboot erases the configuration without a "
             "backup; add --force if that is what you want"
         )
