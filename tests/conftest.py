@@ -14,10 +14,17 @@ import os
 import subprocess
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
+from tests.fc.faulty_transport import FaultyTransport, InjectFaults
+from wftool.cli import fc as fc_commands
 from wftool.cli import main
+from wftool.errors import MspError
+from wftool.fc import params
+from wftool.fc.cli_session import CliSession
+from wftool.fc.msp import MspClient
 from wftool.firmware import BuildOptions, BuildResult, build
 from wftool.firmware.project import Project
 from wftool.sitl.process import VirtualFC, free_port_base
@@ -86,6 +93,46 @@ def virtual_fc(sitl_binary: Path, tmp_path: Path) -> Iterator[VirtualFC]:
     """A freshly started SITL with an empty configuration, stopped after the test."""
     with VirtualFC(sitl_binary, tmp_path / "sitl", port_base=free_port_base()) as fc:
         yield fc
+
+
+@pytest.fixture
+def on_sitl(virtual_fc: VirtualFC, monkeypatch: pytest.MonkeyPatch) -> VirtualFC:
+    """The virtual FC as the board the CLI finds (`find_board`, how it locates a USB FC);
+    everything below that is the real code path."""
+    monkeypatch.setattr(fc_commands, "find_board", lambda port, present=True: virtual_fc)
+    return virtual_fc
+
+
+@pytest.fixture
+def inject_faults(monkeypatch: pytest.MonkeyPatch) -> InjectFaults:
+    """`inject_faults(**faults)`: the links the parameter workflow (and so backup and flash)
+    opens go through a FaultyTransport with these faults (tests/fc/faulty_transport.py)."""
+
+    def inject(**faults: Any) -> FaultyTransport:
+        transport = FaultyTransport(**faults)
+        monkeypatch.setattr(params, "open_port", transport.open_port)
+        return transport
+
+    return inject
+
+
+def fc_settings(fc: VirtualFC, *names: str) -> dict[str, str]:
+    """What the FC's CLI says the settings NAMES are (it leaves the CLI with `exit`)."""
+    session = CliSession.open(fc.url)
+    try:
+        return {name: session.get(name).value for name in names}
+    finally:
+        session.exit()
+        fc.wait_back()
+
+
+def answers_msp(fc: VirtualFC) -> bool:
+    """Whether the FC answers MSP, i.e. is not sitting in its CLI."""
+    with MspClient.open(fc.url) as msp:
+        try:
+            return msp.fc_variant() == "BTFL"
+        except MspError:
+            return False
 
 
 def run_cli(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str, str]:

@@ -1,7 +1,7 @@
 """The click layer: one-line errors and exit codes, and the happy paths against SITL.
 
-`find_board` (how the CLI locates a USB FC) is pointed at the virtual FC; everything
-below it is the real code path.
+`find_board` (how the CLI locates a USB FC) is pointed at the virtual FC (`on_sitl`);
+everything below it is the real code path.
 """
 
 from __future__ import annotations
@@ -10,20 +10,11 @@ from pathlib import Path
 
 import pytest
 
+from tests.conftest import answers_msp, fc_settings
 from tests.conftest import run_cli as run
-from tests.fc.faulty_transport import FaultyTransport
-from wftool.cli import fc as fc_commands
-from wftool.errors import MspError
-from wftool.fc import params
+from tests.fc.faulty_transport import InjectFaults
 from wftool.fc.cli_session import CliSession
-from wftool.fc.msp import MspClient
 from wftool.sitl.process import VirtualFC
-
-
-@pytest.fixture
-def on_sitl(virtual_fc: VirtualFC, monkeypatch: pytest.MonkeyPatch) -> VirtualFC:
-    monkeypatch.setattr(fc_commands, "find_board", lambda port, present=True: virtual_fc)
-    return virtual_fc
 
 
 def test_bad_assignment_is_a_usage_error(capsys: pytest.CaptureFixture[str]) -> None:
@@ -39,14 +30,24 @@ def test_unopenable_port_is_a_port_error(capsys: pytest.CaptureFixture[str]) -> 
     assert err.count("\n") == 1
 
 
-def test_unknown_script_command_is_refused(
-    capsys: pytest.CaptureFixture[str], tmp_path: Path
+@pytest.mark.parametrize(
+    ("name", "text", "message"),
+    [
+        ("x.txt", "set a = 1\nflash_erase\n",
+         "error: x.txt:2: `flash_erase` is not a configuration command wftool replays "
+         "(nothing was changed)\n"),
+        ("x.toml", 'gyro_lpf1_static_hz = 200\ncraft_name = "caf\xe9"\n',
+         "error: x.toml: craft_name: 'set craft_name = caf\xe9': the FC's CLI takes printable "
+         "ASCII only, not '\xe9' (nothing was changed)\n"),
+    ],
+    ids=["unknown-command", "non-ascii-toml-value"],
+)  # fmt: skip
+def test_a_file_wftool_will_not_send_is_refused(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path, name: str, text: str, message: str
 ) -> None:
-    script = tmp_path / "x.txt"
-    script.write_text("set a = 1\nflash_erase\n")
-    code, _, err = run(capsys, "config", "apply", str(script))
-    assert (code, err) == (2, "error: x.txt:2: `flash_erase` is not a configuration command "
-                              "wftool replays (nothing was changed)\n")  # fmt: skip
+    script = tmp_path / name
+    script.write_text(text)
+    assert run(capsys, "config", "apply", str(script))[::2] == (2, message)
 
 
 def test_invalid_parameter_exits_2_with_the_fcs_reason(
@@ -121,28 +122,19 @@ def test_doctor_fix_into_a_directory(capsys: pytest.CaptureFixture[str], tmp_pat
 # around the real link (tests/fc/faulty_transport.py).
 
 
-def _settings(fc: VirtualFC, *names: str) -> dict[str, str]:
-    session = CliSession.open(fc.url)
-    try:
-        return {name: session.get(name).value for name in names}
-    finally:
-        session.exit()
-        fc.wait_back()
-
-
-def _answers_msp(fc: VirtualFC) -> bool:
-    with MspClient.open(fc.url) as msp:
-        try:
-            return msp.fc_variant() == "BTFL"
-        except MspError:
-            return False
-
-
 def _eeprom(fc: VirtualFC) -> bytes:
     return (fc.workdir / "eeprom.bin").read_bytes()
 
 
 DEFAULTS = {"gyro_lpf1_static_hz": "250", "p_pitch": "47", "gyro_lpf2_static_hz": "500"}
+
+
+def _assert_as_before(fc: VirtualFC, eeprom: bytes) -> None:
+    """The FC is out of its CLI (it answers MSP), with the configuration it had: the same
+    eeprom.bin, and its CLI reports the settings the tests change at their defaults."""
+    assert answers_msp(fc)
+    assert _eeprom(fc) == eeprom
+    assert fc_settings(fc, *DEFAULTS) == DEFAULTS
 
 
 @pytest.mark.parametrize(
@@ -163,22 +155,8 @@ def test_text_the_cli_cannot_carry_is_refused_before_the_fc_is_touched(
     assert code == 2, err
     assert err.count("\n") == 1 and err.startswith("error: ") and "nothing was changed" in err
     assert not (tmp_path / "b").exists()  # refused before the backup: the FC was not touched
-    assert on_sitl.starts == 1 and _answers_msp(on_sitl)
-    assert _eeprom(on_sitl) == eeprom
-    assert _settings(on_sitl, "gyro_lpf1_static_hz") == {"gyro_lpf1_static_hz": "250"}
-
-
-def test_a_toml_value_the_cli_cannot_carry_is_refused(
-    capsys: pytest.CaptureFixture[str], tmp_path: Path
-) -> None:
-    toml = tmp_path / "x.toml"
-    toml.write_text('gyro_lpf1_static_hz = 200\ncraft_name = "caf\xe9"\n')
-    code, _, err = run(capsys, "config", "apply", str(toml))
-    assert code == 2
-    assert err == (
-        "error: x.toml: craft_name: 'set craft_name = caf\xe9': the FC's CLI takes printable "
-        "ASCII only, not '\xe9' (nothing was changed)\n"
-    )
+    assert on_sitl.starts == 1
+    _assert_as_before(on_sitl, eeprom)
 
 
 @pytest.mark.parametrize("where", ["under-a-file", "/sys/kernel"])
@@ -192,35 +170,32 @@ def test_an_unwritable_backup_dir_is_refused_before_the_fc_is_touched(
         backup_dir = Path(where)
         if not backup_dir.is_dir():
             pytest.skip(f"{where} is not a directory here")
+    eeprom = _eeprom(on_sitl)
     code, _, err = run(capsys, "set", "gyro_lpf1_static_hz=200", "--backup-dir", str(backup_dir))
     assert code == 2, err
     assert err.startswith(f"error: cannot write backups to {backup_dir}: ")
     assert err.endswith("(choose another --backup-dir; the FC was not touched)\n")
     assert err.count("\n") == 1
-    assert on_sitl.starts == 1 and _answers_msp(on_sitl)
-    assert _settings(on_sitl, "gyro_lpf1_static_hz") == {"gyro_lpf1_static_hz": "250"}
+    assert on_sitl.starts == 1
+    _assert_as_before(on_sitl, eeprom)
 
 
 def test_ctrl_c_during_apply_leaves_the_fc_as_it_was_and_out_of_its_cli(
     on_sitl: VirtualFC,
     capsys: pytest.CaptureFixture[str],
     tmp_path: Path,
-    monkeypatch: pytest.MonkeyPatch,
+    inject_faults: InjectFaults,
 ) -> None:
     # Ctrl-C right after the third `set` went out: two changes are live in RAM, the
     # third is on its way.
-    faults = FaultyTransport(interrupt_at=b"set gyro_lpf2_static_hz")
-    monkeypatch.setattr(params, "open_port", faults.open_port)
+    faults = inject_faults(interrupt_at=b"set gyro_lpf2_static_hz")
     eeprom = _eeprom(on_sitl)
     code, _, err = run(capsys, "set", "gyro_lpf1_static_hz=200", "p_pitch=50",
                        "gyro_lpf2_static_hz=400", "--backup-dir", str(tmp_path))  # fmt: skip
     assert faults.fired == ["Ctrl-C after b'set gyro_lpf2_static_hz = 400\\n'"]
     assert code == 130
     assert "wftool: interrupted — nothing was saved; the FC drops unsaved changes" in err
-    monkeypatch.undo()
-    assert _answers_msp(on_sitl)
-    assert _eeprom(on_sitl) == eeprom
-    assert _settings(on_sitl, *DEFAULTS) == DEFAULTS
+    _assert_as_before(on_sitl, eeprom)
 
 
 def test_an_fc_found_sitting_in_its_cli_is_taken_out_of_it(
@@ -230,7 +205,7 @@ def test_an_fc_found_sitting_in_its_cli_is_taken_out_of_it(
     session = CliSession.open(on_sitl.url)
     session.set("gyro_lpf1_static_hz", "123")
     session.link.close()
-    assert not _answers_msp(on_sitl)
+    assert not answers_msp(on_sitl)
 
     code, out, err = run(capsys, "info")
     assert code == 0, err
@@ -239,7 +214,7 @@ def test_an_fc_found_sitting_in_its_cli_is_taken_out_of_it(
     code, _, err = run(capsys, "set", "p_pitch=55", "--backup-dir", str(tmp_path))
     assert code == 0, err
     assert "sitting in its CLI" not in err
-    assert _settings(on_sitl, "gyro_lpf1_static_hz", "p_pitch") == {
+    assert fc_settings(on_sitl, "gyro_lpf1_static_hz", "p_pitch") == {
         "gyro_lpf1_static_hz": "250",
         "p_pitch": "55",
     }
@@ -249,10 +224,9 @@ def test_a_link_dropped_at_save_is_not_reported_as_saved(
     on_sitl: VirtualFC,
     capsys: pytest.CaptureFixture[str],
     tmp_path: Path,
-    monkeypatch: pytest.MonkeyPatch,
+    inject_faults: InjectFaults,
 ) -> None:
-    faults = FaultyTransport(drop_at=b"save")  # the FC never gets `save`
-    monkeypatch.setattr(params, "open_port", faults.open_port)
+    faults = inject_faults(drop_at=b"save")  # the FC never gets `save`
     eeprom = _eeprom(on_sitl)
     code, _, err = run(capsys, "set", "gyro_lpf1_static_hz=200", "--backup-dir", str(tmp_path))
     assert faults.fired == ["link dropped at b'save\\n'"]
@@ -260,28 +234,23 @@ def test_a_link_dropped_at_save_is_not_reported_as_saved(
     assert err.splitlines()[-1].startswith(
         "error: the link dropped before the FC got `save` — nothing was saved"
     )
-    monkeypatch.undo()
-    assert _answers_msp(on_sitl)
-    assert _eeprom(on_sitl) == eeprom
-    assert _settings(on_sitl, "gyro_lpf1_static_hz") == {"gyro_lpf1_static_hz": "250"}
+    _assert_as_before(on_sitl, eeprom)
 
 
 def test_a_save_the_fc_got_before_the_link_dropped_is_confirmed_by_reading_back(
     on_sitl: VirtualFC,
     capsys: pytest.CaptureFixture[str],
     tmp_path: Path,
-    monkeypatch: pytest.MonkeyPatch,
+    inject_faults: InjectFaults,
 ) -> None:
-    faults = FaultyTransport(drop_at=b"save", drop_after_sending=True)
-    monkeypatch.setattr(params, "open_port", faults.open_port)
+    faults = inject_faults(drop_at=b"save", drop_after_sending=True)
     code, _, err = run(capsys, "set", "gyro_lpf1_static_hz=200", "--backup-dir", str(tmp_path))
     assert faults.fired == ["link dropped at b'save\\n'"]
     assert code == 0, err
     assert "saved; waiting" not in err
     assert "saved: the FC did not confirm `save`, but every setting reads back as asked" in err
-    monkeypatch.undo()
     on_sitl.restart()  # a cold start: what eeprom.bin holds
-    assert _settings(on_sitl, "gyro_lpf1_static_hz") == {"gyro_lpf1_static_hz": "200"}
+    assert fc_settings(on_sitl, "gyro_lpf1_static_hz") == {"gyro_lpf1_static_hz": "200"}
 
 
 @pytest.mark.parametrize(

@@ -10,6 +10,7 @@ when a command is sent (before or after the FC got it), and a Ctrl-C between two
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import serial
@@ -40,6 +41,10 @@ class FaultyTransport:
 
     def open_port(self, url: str, baudrate: int = 115200, timeout: float = 1.0) -> FaultyLink:
         return FaultyLink(open_port(url, baudrate, timeout), self)
+
+
+InjectFaults = Callable[..., FaultyTransport]
+"""The `inject_faults` fixture (tests/conftest.py): FaultyTransport(**faults), put in place."""
 
 
 class FaultyLink:

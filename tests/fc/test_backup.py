@@ -12,9 +12,9 @@ from pathlib import Path
 
 import pytest
 
-from tests.fc.faulty_transport import FaultyTransport
-from wftool.errors import MspError, ProtocolError
-from wftool.fc import params
+from tests.conftest import answers_msp
+from tests.fc.faulty_transport import InjectFaults
+from wftool.errors import ProtocolError
 from wftool.fc.backup import diff_problems
 from wftool.fc.cli_session import CliSession
 from wftool.fc.msp import MspClient
@@ -34,20 +34,11 @@ def _diff_all(fc: VirtualFC) -> str:
         fc.wait_back()
 
 
-def _answers_msp(fc: VirtualFC) -> bool:
-    with MspClient.open(fc.url) as msp:
-        try:
-            return msp.fc_variant() == "BTFL"
-        except MspError:
-            return False
-
-
 def test_a_diff_all_pausing_after_a_comment_line_is_backed_up_whole(
-    virtual_fc: VirtualFC, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    virtual_fc: VirtualFC, tmp_path: Path, inject_faults: InjectFaults
 ) -> None:
     reference = _diff_all(virtual_fc)
-    faults = FaultyTransport(stall_after_comment=FEATURE_SECTION, stall_s=0.3)
-    monkeypatch.setattr(params, "open_port", faults.open_port)
+    faults = inject_faults(stall_after_comment=FEATURE_SECTION, stall_s=0.3)
     with configuration_session(virtual_fc, tmp_path) as (session, _msp, backup):
         session.exit()
     virtual_fc.wait_back()
@@ -58,10 +49,9 @@ def test_a_diff_all_pausing_after_a_comment_line_is_backed_up_whole(
 
 
 def test_a_diff_all_that_loses_its_end_is_no_backup_and_the_fc_leaves_its_cli(
-    virtual_fc: VirtualFC, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    virtual_fc: VirtualFC, tmp_path: Path, inject_faults: InjectFaults
 ) -> None:
-    faults = FaultyTransport(stall_after_comment=FEATURE_SECTION, stall_s=None)
-    monkeypatch.setattr(params, "open_port", faults.open_port)
+    faults = inject_faults(stall_after_comment=FEATURE_SECTION, stall_s=None)
     with (
         pytest.raises(ProtocolError, match=r"`diff all` output .* stopped after 'signature'"),
         configuration_session(virtual_fc, tmp_path / "backups"),
@@ -69,7 +59,7 @@ def test_a_diff_all_that_loses_its_end_is_no_backup_and_the_fc_leaves_its_cli(
         pytest.fail("a session without a complete backup must not start")
     assert faults.fired == ["`diff all` lost the rest after b'signature \\r\\n\\r\\n# '"]
     assert list((tmp_path / "backups").iterdir()) == []
-    assert _answers_msp(virtual_fc)  # out of its CLI (it left with `exit`: one more start)
+    assert answers_msp(virtual_fc)  # out of its CLI (it left with `exit`: one more start)
     assert virtual_fc.starts == 2
 
 

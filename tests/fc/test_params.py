@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 
+from tests.conftest import fc_settings
 from wftool.errors import CliCommandError, ParameterError, UsageError
 from wftool.fc.cli_session import CliSession
 from wftool.fc.msp import MspClient
@@ -32,15 +33,6 @@ def _eeprom(fc: VirtualFC) -> str:
     return hashlib.sha256((fc.workdir / "eeprom.bin").read_bytes()).hexdigest()
 
 
-def _values(fc: VirtualFC, *names: str) -> dict[str, str]:
-    session = CliSession.open(fc.url)
-    try:
-        return {name: session.get(name).value for name in names}
-    finally:
-        session.exit()
-        fc.wait_back()
-
-
 def test_set_applies_saves_and_reads_back(virtual_fc: VirtualFC, tmp_path: Path) -> None:
     plan = plan_from_assignments(
         ["gyro_lpf1_static_hz=200", "p_pitch=50", "dterm_lpf1_type=biquad"]
@@ -54,7 +46,7 @@ def test_set_applies_saves_and_reads_back(virtual_fc: VirtualFC, tmp_path: Path)
     assert report.mismatches == []
     assert report.backup.read_text().splitlines()[2] == "# version"
     virtual_fc.restart()  # a cold start reads eeprom.bin only
-    assert _values(virtual_fc, "gyro_lpf1_static_hz", "p_pitch") == {
+    assert fc_settings(virtual_fc, "gyro_lpf1_static_hz", "p_pitch") == {
         "gyro_lpf1_static_hz": "200",
         "p_pitch": "50",
     }
@@ -86,7 +78,7 @@ def test_invalid_parameters_change_nothing(
     assert error.value.exit_code == 2
     assert _eeprom(virtual_fc) == eeprom
     virtual_fc.restart()
-    assert _values(virtual_fc, "gyro_lpf1_static_hz")["gyro_lpf1_static_hz"] == "250"
+    assert fc_settings(virtual_fc, "gyro_lpf1_static_hz")["gyro_lpf1_static_hz"] == "250"
 
 
 def test_a_command_failing_midway_leaves_nothing_saved(
@@ -103,7 +95,7 @@ def test_a_command_failing_midway_leaves_nothing_saved(
         apply_plan(virtual_fc, plan, tmp_path)
     assert _eeprom(virtual_fc) == eeprom
     virtual_fc.restart()
-    assert _values(virtual_fc, "gyro_lpf1_static_hz")["gyro_lpf1_static_hz"] == "250"
+    assert fc_settings(virtual_fc, "gyro_lpf1_static_hz")["gyro_lpf1_static_hz"] == "250"
 
 
 def test_cli_script_with_profiles_features_serial_aux_map(
@@ -189,7 +181,7 @@ def test_backup_and_restore_round_trip(virtual_fc: VirtualFC, tmp_path: Path) ->
     restored = apply_plan(virtual_fc, plan_from_file(second.backup), tmp_path)
     assert {r.name: r.after for r in restored.rows}["p_pitch"] == "55"
     assert restored.features_ok
-    assert _values(virtual_fc, "p_pitch", "gyro_lpf2_static_hz") == {
+    assert fc_settings(virtual_fc, "p_pitch", "gyro_lpf2_static_hz") == {
         "p_pitch": "55",
         "gyro_lpf2_static_hz": lpf2_default,
     }

@@ -17,12 +17,10 @@ import pytest
 from intelhex import IntelHex
 
 from tests.conftest import run_cli
-from tests.fc.faulty_transport import FaultyTransport
+from tests.fc.faulty_transport import InjectFaults
 from tests.flash.standin import UNTOUCHED, StandinDfuUtil
-from wftool.cli import fc as fc_commands
 from wftool.cli import main
 from wftool.errors import FlashError, UsageError
-from wftool.fc import params
 from wftool.fc.msp import BoardInfo, BuildInfo, MspClient
 from wftool.fc.params import apply_plan, plan_from_assignments
 from wftool.firmware.manifest import BuildFlags, Manifest
@@ -211,14 +209,12 @@ def test_bad_manifest_is_a_usage_error(tmp_path: Path) -> None:
 
 
 def test_wftool_flash_command_end_to_end(
-    virtual_fc: VirtualFC,
+    on_sitl: VirtualFC,
     standin_dfu_util: StandinDfuUtil,
     tmp_path: Path,
-    monkeypatch: pytest.MonkeyPatch,
     capsys: pytest.CaptureFixture[str],
 ) -> None:
-    monkeypatch.setattr(fc_commands, "find_board", lambda port, present=True: virtual_fc)
-    hex_path = _image(tmp_path / "fw.hex", _build_of(virtual_fc), "SITL", "STM32F7X2")
+    hex_path = _image(tmp_path / "fw.hex", _build_of(on_sitl), "SITL", "STM32F7X2")
     with pytest.raises(SystemExit) as exit_info:
         main(["flash", str(hex_path), "--backup-dir", str(tmp_path / "b")])
     out, err = capsys.readouterr()
@@ -229,35 +225,31 @@ def test_wftool_flash_command_end_to_end(
 
 
 def test_an_image_for_another_mcu_is_bad_input(
-    virtual_fc: VirtualFC,
+    on_sitl: VirtualFC,
     standin_dfu_util: StandinDfuUtil,
     tmp_path: Path,
-    monkeypatch: pytest.MonkeyPatch,
     capsys: pytest.CaptureFixture[str],
 ) -> None:
-    monkeypatch.setattr(fc_commands, "find_board", lambda port, present=True: virtual_fc)
-    hex_path = _image(tmp_path / "fw.hex", _build_of(virtual_fc), "STM32F7X2")  # not "SITL"
+    hex_path = _image(tmp_path / "fw.hex", _build_of(on_sitl), "STM32F7X2")  # not "SITL"
     code, _, err = run_cli(capsys, "flash", str(hex_path), "--backup-dir", str(tmp_path / "b"))
     assert (code, err.splitlines()[-1]) == (
         2,
         "error: refusing to flash fw.hex: the image does not name the FC's target SITL "
         "(--force overrides)",
     )
-    assert standin_dfu_util.calls() == [] and virtual_fc.starts == 1
+    assert standin_dfu_util.calls() == [] and on_sitl.starts == 1
 
 
 def test_full_erase_does_not_happen_after_an_incomplete_backup(
-    virtual_fc: VirtualFC,
+    on_sitl: VirtualFC,
     standin_dfu_util: StandinDfuUtil,
     tmp_path: Path,
-    monkeypatch: pytest.MonkeyPatch,
+    inject_faults: InjectFaults,
     capsys: pytest.CaptureFixture[str],
 ) -> None:
     # The FC's `diff all` loses its rest after a `# ` line (tests/fc/faulty_transport.py).
-    monkeypatch.setattr(fc_commands, "find_board", lambda port, present=True: virtual_fc)
-    faults = FaultyTransport(stall_after_comment=5, stall_s=None)
-    monkeypatch.setattr(params, "open_port", faults.open_port)
-    hex_path = _image(tmp_path / "fw.hex", _build_of(virtual_fc), "SITL", "STM32F7X2")
+    faults = inject_faults(stall_after_comment=5, stall_s=None)
+    hex_path = _image(tmp_path / "fw.hex", _build_of(on_sitl), "SITL", "STM32F7X2")
     code, _, err = run_cli(capsys, "flash", str(hex_path), "--full-erase", "--backup-dir",
                            str(tmp_path / "b"))  # fmt: skip
     assert faults.fired and faults.fired[0].startswith("`diff all` lost the rest")
@@ -266,10 +258,9 @@ def test_full_erase_does_not_happen_after_an_incomplete_backup(
     assert "incomplete" in err.splitlines()[-1]
     assert standin_dfu_util.calls() == []  # never in DFU, never erased
     assert standin_dfu_util.flash() == bytes([UNTOUCHED]) * len(standin_dfu_util.flash())
-    assert b"ResetToBootloader" not in virtual_fc.log_path.read_bytes()
+    assert b"ResetToBootloader" not in on_sitl.log_path.read_bytes()
     assert list((tmp_path / "b").iterdir()) == []
-    monkeypatch.undo()
-    assert _build_of(virtual_fc).git_revision  # out of its CLI: it answers MSP
+    assert _build_of(on_sitl).git_revision  # out of its CLI: it answers MSP
 
 
 def _project(root: Path) -> Path:
@@ -296,14 +287,13 @@ def test_default_firmware_is_found_through_the_project_not_the_cwd(
 
 
 def test_wftool_flash_from_a_subdirectory_flashes_the_projects_build(
-    virtual_fc: VirtualFC,
+    on_sitl: VirtualFC,
     standin_dfu_util: StandinDfuUtil,
     tmp_path: Path,
     monkeypatch: pytest.MonkeyPatch,
     capsys: pytest.CaptureFixture[str],
 ) -> None:
-    monkeypatch.setattr(fc_commands, "find_board", lambda port, present=True: virtual_fc)
-    with MspClient.open(virtual_fc.url) as msp:
+    with MspClient.open(on_sitl.url) as msp:
         fc = msp.identify()
     project = _project(tmp_path / "checkout")
     hex_path = _image(project / "fw.hex", fc.build, "STM32F7X2")
