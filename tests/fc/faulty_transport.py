@@ -106,6 +106,11 @@ class FaultyLink:
             return chunk
         return self.link.read(size)
 
+    def reset_input_buffer(self) -> None:
+        """Drop what arrived; a held-back rest has not arrived yet and stays held."""
+        self._ready.clear()
+        self.link.reset_input_buffer()
+
     def _split_diff(self) -> None:
         """Read the whole `diff all` reply; hand out the part before the stall point."""
         self._diff_pending = False
