@@ -60,5 +60,9 @@ class ParameterError(UsageError):
     """Parameters the flight controller would reject; found before anything was changed."""
 
 
+class RecordingError(WftoolError):
+    """A recording could not go on (disk full, I/O error); the file is finished up to there."""
+
+
 class SitlError(WftoolError):
     """The SITL (virtual flight controller) process would not start, or died."""

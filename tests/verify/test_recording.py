@@ -39,7 +39,7 @@ class RecordingMonitor(StreamMonitor):
 
 def test_replay_gives_the_same_summary(tmp_path: Path):
     mcap, table = tmp_path / "run.mcap", tmp_path / "run.csv"
-    with Recorder(mcap, table, {"port": "socket://sim:5762"}) as recorder:
+    with Recorder(mcap, table, {"port": "socket://sim:5762"}, record_format="json") as recorder:
         live = RecordingMonitor(recorder)
         live.connected(0.0)
         t = feed_steady(live, range(300), 0.0)
@@ -71,4 +71,4 @@ def test_unfinished_or_foreign_file_is_a_clear_error(tmp_path: Path):
 
 def test_unwritable_path_is_a_usage_error(tmp_path: Path):
     with pytest.raises(UsageError, match="cannot write the recording"):
-        Recorder(tmp_path / "missing-dir" / "run.mcap", None, {})
+        Recorder(tmp_path / "missing-dir" / "run.mcap", None, {}, record_format="json")
