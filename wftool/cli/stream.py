@@ -59,10 +59,16 @@ run_options = _options(
     click.option("--uplink", is_flag=True, help="Send a command pattern and expect it back in RC."),
     click.option("--uplink-rate", type=float, default=50.0, show_default=True,
                  help="Commands per second."),
-    click.option("--record", "record_path", type=click.Path(dir_okay=False, path_type=Path),
-                 help="Record frames and raw bytes to this MCAP file."),
+    click.option("--record", "record_path", type=click.Path(path_type=Path),
+                 help="Record frames and raw bytes: a rosbag2 directory (ros2) or MCAP file."),
+    click.option("--record-format", type=click.Choice(["ros2", "json"]), default="ros2",
+                 show_default=True, help="ROS 2 messages (ros2 bag play) or JSON MCAP."),
     click.option("--csv", "csv_path", type=click.Path(dir_okay=False, path_type=Path),
                  help="Record frames to this CSV file."),
+    click.option("--foxglove", "foxglove_port", type=int, is_flag=False, flag_value=8765,
+                 metavar="[PORT]", help="Serve the stream live to Foxglove [port 8765]."),
+    click.option("--foxglove-host", default="127.0.0.1", show_default=True,
+                 help="Address the Foxglove server binds to."),
 )  # fmt: skip
 
 
@@ -97,12 +103,16 @@ def verify_stream(
     uplink: bool,
     uplink_rate: float,
     record_path: Path | None,
+    record_format: str,
     csv_path: Path | None,
+    foxglove_port: int | None,
+    foxglove_host: str,
     expected_rate: float | None,
     as_json: bool,
     **criteria_values: Any,
 ) -> None:
     """The live dashboard until the duration is up (or Ctrl-C), then the verdict."""
+    from wftool.verify.foxglove import FoxgloveLive
     from wftool.verify.live import LiveOptions, run_live
     from wftool.verify.recording import Recorder
 
@@ -115,7 +125,18 @@ def verify_stream(
         "expected_rate_hz": str(expected_rate or ""),
         "uplink_rate_hz": str(uplink_rate if uplink else ""),
     }
-    recorder = Recorder(record_path, csv_path, metadata) if record_path or csv_path else None
+    live_view = None
+    if foxglove_port is not None:
+        live_view = FoxgloveLive(foxglove_port, foxglove_host)
+        err.print(f"Foxglove  [bold]{live_view.url}[/]")
+    recorder = None
+    try:
+        if record_path or csv_path:
+            recorder = Recorder(record_path, csv_path, metadata, record_format)
+    except WftoolError:
+        if live_view is not None:
+            live_view.close()
+        raise
 
     def view(summary: StreamSummary) -> Any:
         return render(summary, monitor.latest, judge(summary, criteria))
@@ -124,13 +145,17 @@ def verify_stream(
     try:
         with Live(view(monitor.summary()), console=console, refresh_per_second=4) as live:
             try:
-                summary = run_live(options, monitor, recorder, lambda s: live.update(view(s)))
+                summary = run_live(
+                    options, monitor, recorder, lambda s: live.update(view(s)), live_view=live_view
+                )
             except KeyboardInterrupt:  # the normal end of an open-ended run
                 summary = monitor.summary()
             live.update(view(summary))
         if not console.is_terminal:
             console.line()  # rich leaves a non-terminal's last line open
     finally:
+        if live_view is not None:
+            live_view.close()
         if recorder is not None:
             recorder.close()
     _finish(summary, criteria, as_json)
@@ -154,10 +179,10 @@ def verify(stream: bool, url: str, baud: int, duration: float | None, **options:
 
 
 @click.command("replay")
-@click.argument("recording", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.argument("recording", type=click.Path(exists=True, path_type=Path))
 @criteria_options
 def replay(recording: Path, expected_rate: float | None, as_json: bool, **options: Any) -> None:
-    """The statistics and verdict of a `verify --record` MCAP file, computed again."""
+    """The statistics and verdict of a `verify --record` recording, computed again."""
     from wftool.verify.recording import replay_recording
 
     monitor = replay_recording(recording, expected_rate)
@@ -214,6 +239,8 @@ def sitl(
     """Run the virtual FC: the patched SITL with FSP on UART2, until Ctrl-C (or --verify)."""
     from wftool.virtual_fc import Motion, VirtualFcSession
 
+    if options["foxglove_port"] is not None and verify_s is None:
+        raise UsageError("--foxglove on sitl needs --verify SECONDS (the stream is read there)")
     if binary is None:
         binary = build_sitl(project_dir)
     workdir = workdir or Path(tempfile.mkdtemp(prefix="wftool-sitl-"))

@@ -11,12 +11,17 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from wftool.errors import PortError
 from wftool.fsp import FspReader
 from wftool.verify.monitor import StreamMonitor, StreamSummary
 from wftool.verify.recording import Event, Recorder
+from wftool.verify.ros2 import HealthSampler
 from wftool.verify.uplink import pattern_command
+
+if TYPE_CHECKING:
+    from wftool.verify.foxglove import FoxgloveLive
 
 REFRESH_S = 0.25
 READ_TIMEOUT_S = 0.05
@@ -40,8 +45,12 @@ def run_live(
     on_refresh: Callable[[StreamSummary], None] | None = None,
     stop: threading.Event | None = None,
     now: Callable[[], float] = time.monotonic,
+    live_view: FoxgloveLive | None = None,
 ) -> StreamSummary:
-    """Verify the stream on `options.url` until the duration is up; the final summary."""
+    """Verify the stream on `options.url` until the duration is up; the final summary.
+
+    Each read's packets also go to `recorder` and `live_view`, with a health snapshot.
+    """
     start = now()
     end = start + options.duration_s if options.duration_s is not None else float("inf")
     reader: FspReader | None = None
@@ -52,6 +61,7 @@ def run_live(
     next_command = start
     next_refresh = start
     connected_once = False
+    health = HealthSampler(monitor)
 
     def record(event: Event) -> None:
         if recorder is not None:
@@ -97,8 +107,12 @@ def run_live(
                 if data:
                     record(Event("bytes", t, data))
                     packets = monitor.feed(data, t)
-                    if recorder is not None:
-                        recorder.packets(packets)
+                    if recorder is not None or live_view is not None:
+                        snapshot = health.sample(packets, t)
+                        if recorder is not None:
+                            recorder.packets(packets, snapshot)
+                        if live_view is not None:
+                            live_view.packets(packets, snapshot)
                 if period is not None and t >= next_command:
                     rc = pattern_command(command_index, options.uplink_rate_hz)
                     reader.send_command(rc)
