@@ -80,6 +80,10 @@ class VerificationFailed(WftoolError):
     """The stream ran but did not meet the criteria (exit 1)."""
 
 
+class RecordingError(WftoolError):
+    """A recording could not go on (disk full, I/O error); the file is finished up to there."""
+
+
 class SitlError(WftoolError):
     """The SITL (virtual flight controller) process would not start, or died."""
 

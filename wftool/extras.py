@@ -18,6 +18,7 @@ EXTRAS: dict[str, dict[str, str]] = {
         "unicorn": "Unicorn",
     },
     "mavlink": {"pymavlink": "pymavlink"},
+    "foxglove": {"foxglove": "the Foxglove SDK"},
 }
 """Per extra, its modules (import name -> the name a user knows). Keep in step with
 pyproject.toml's [project.optional-dependencies]."""

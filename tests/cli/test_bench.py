@@ -24,3 +24,14 @@ def test_bench_decode_prints_every_path_and_their_agreement(
         assert path in out
     assert "columnar and per-frame totals agree: yes (630 packets, 0 rejected" in out
     assert "every packet kept" in out and "of which the columns themselves" in out
+
+
+def test_bench_record_prints_both_formats_and_their_read_back(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    code, out, err = run_cli(capsys, "bench", "record", "--seconds", "2", "--repeat", "1")
+    assert (code, err) == (0, "")
+    rows = {line.split()[1]: line for line in out.splitlines() if line.startswith("│ ")}
+    assert set(rows) == {"ros2", "json"}
+    assert "size 1.00x, CPU 1.00x" in rows["json"]  # the reference row
+    assert "needs wftool[analysis]" not in out  # columns read back (NumPy is installed)

@@ -42,7 +42,7 @@ def record_two_connections(
 ) -> RecordingMonitor:
     """Record a run of 300 packets, a reconnect, a chunk of garbage and 100 packets more;
     with `reboot`, the FC then restarts and sends 50 packets from its boot time again."""
-    with Recorder(mcap, table, {"port": "socket://sim:5762"}) as recorder:
+    with Recorder(mcap, table, {"port": "socket://sim:5762"}, record_format="json") as recorder:
         live = RecordingMonitor(recorder)
         live.connected(0.0)
         t = feed_steady(live, range(300), 0.0)
@@ -82,4 +82,4 @@ def test_unfinished_or_foreign_file_is_a_clear_error(tmp_path: Path):
 
 def test_unwritable_path_is_a_usage_error(tmp_path: Path):
     with pytest.raises(UsageError, match="cannot write the recording"):
-        Recorder(tmp_path / "missing-dir" / "run.mcap", None, {})
+        Recorder(tmp_path / "missing-dir" / "run.mcap", None, {}, record_format="json")

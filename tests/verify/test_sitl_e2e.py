@@ -45,7 +45,7 @@ def verify_json(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, di
 def test_stream_passes_with_no_errors_no_loss_and_replays_identically(
     fsp_fc: VirtualFcSession, capsys: pytest.CaptureFixture[str], tmp_path: Path
 ) -> None:
-    recording = tmp_path / "run.mcap"
+    recording = tmp_path / "run"  # a rosbag2 directory (the default ros2 format)
     code, live, err = verify_json(
         capsys, "verify", "--stream", "--port", fsp_fc.fsp_url, "--duration", "8",
         "--max-loss", "0", "--max-fc-drops", "0", *expected(fsp_fc), "--record", str(recording),

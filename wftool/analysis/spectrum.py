@@ -2,8 +2,9 @@
 
 Two kinds of input carry acceleration and motor speed:
 
-- an MCAP recording of `wftool verify --record`: FSP frames with acceleration in g (as the
-  FC streams it, i.e. after its RPM filter) and mechanical RPM per motor; one panel.
+- a recording of `wftool verify --record` (rosbag2 directory or MCAP file, either format),
+  decoded from its raw bytes by the columnar decoder: FSP frames with acceleration in g (as
+  the FC streams it, i.e. after its RPM filter) and mechanical RPM per motor; one panel.
   Samples are placed by their FC capture times; a recording with gaps or FC resets is cut
   into continuous stretches and the longest is shown (the command says so);
 - an acceleration series in .npz (written by `wftool analyze accfilter`, or by anyone):
@@ -84,7 +85,10 @@ class Spectrogram:
 
 
 def read_series(path: Path) -> AccSeries:
-    """An MCAP recording or an .npz series; anything else is a one-line UsageError."""
+    """A recording (MCAP file or rosbag2 directory) or an .npz series; anything else is a
+    one-line UsageError."""
+    if path.is_dir():
+        return _read_recording(path)
     try:
         with open(path, "rb") as handle:
             head = handle.read(8)

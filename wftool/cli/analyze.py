@@ -33,7 +33,7 @@ def analyze_group() -> None:
 @analyze_group.command(
     "spectrum", short_help="Fig. 4: acceleration spectrogram with the motor fundamentals."
 )
-@click.argument("recording", type=click.Path(dir_okay=False, path_type=Path))
+@click.argument("recording", type=click.Path(path_type=Path))
 @click.option(
     "--out",
     "out_path",
@@ -50,8 +50,9 @@ def analyze_group() -> None:
 def spectrum_command(recording: Path, out_path: Path | None, axis: str) -> None:
     """Fig. 4: acceleration spectrogram with the motor fundamentals, as a PNG.
 
-    RECORDING is an MCAP file of `wftool verify --record` or an acceleration series (.npz)
-    such as `wftool analyze accfilter` writes (before and after the RPM filter).
+    RECORDING is a `wftool verify --record` recording (a rosbag2 directory or an MCAP file,
+    either format) or an acceleration series (.npz) such as `wftool analyze accfilter`
+    writes (before and after the RPM filter).
     """
     require("analysis", *PLOTTING, what="analyze spectrum")
     from wftool.analysis.spectrum import dominant_peaks, draw, read_series, spectrogram

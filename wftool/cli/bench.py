@@ -229,4 +229,50 @@ def bench_clock(seconds: float, seeds: int, drift: float, repeat: int) -> None:
     out.print(f"goal ({goal}): " + (f"missed on {misses}" if misses else "met on every model"))
 
 
+@bench_group.command("record")
+@click.option("--seconds", default=60.0, show_default=True, help="Length of the recorded stream.")
+@click.option(
+    "--chunk", default=118, show_default=True, help="Bytes per read [one packet, as live]."
+)
+@click.option(
+    "--repeat",
+    type=click.IntRange(1),
+    default=3,
+    show_default=True,
+    help="Runs of each format; the least CPU counts (a shared machine is noisy).",
+)
+def bench_record(seconds: float, chunk: int, repeat: int) -> None:
+    """Bytes and CPU per frame of recording, JSON vs ROS 2 MCAP, at 1 kHz."""
+    from wftool.bench.record import run_record_bench
+
+    result = run_record_bench(seconds, chunk, repeat)
+    json_figures = result.format("json")
+    table = Table(
+        title=f"recording {result.frames:,} frames ({seconds:g} s at ~1 kHz), "
+        f"{chunk} B reads, best of {repeat}"
+    )
+    for column in (
+        "format", "bytes/frame", "CPU µs/frame", "% of a core at 1 kHz", "vs JSON",
+        "replay frames/s", "columns frames/s",
+    ):  # fmt: skip
+        table.add_column(column, justify="left" if column == "format" else "right")
+    for figures in result.formats:
+        size_ratio = figures.bytes_per_frame / json_figures.bytes_per_frame
+        cpu_ratio = figures.cpu_us_per_frame / json_figures.cpu_us_per_frame
+        columns = figures.columns_frames_per_s
+        table.add_row(
+            figures.name,
+            f"{figures.bytes_per_frame:.1f}",
+            f"{figures.cpu_us_per_frame:.1f}",
+            f"{figures.core_percent_at_1khz:.2f}",
+            f"size {size_ratio:.2f}x, CPU {cpu_ratio:.2f}x",
+            f"{figures.replay_frames_per_s:,.0f}",
+            "needs wftool[analysis]" if columns is None else f"{columns:,.0f}",
+        )
+    out.print(table)
+    reference = 1e6 * result.reference_cpu_s / result.frames
+    out.print(f"reference (decode + monitor, no recording): {reference:.1f} µs/frame")
+    out.print("targets: ROS 2 no larger than JSON; recording <= 5 % of one core at 1 kHz")
+
+
 COMMANDS: list[click.Command] = [bench_group]

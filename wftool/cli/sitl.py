@@ -7,15 +7,13 @@ from pathlib import Path
 from typing import Any
 
 import click
-from rich.console import Console
 
-from wftool.cli.verify import criteria_options, run_options, verify_stream
+from wftool.cli.verify import announce, criteria_options, err, run_options, verify_stream
 from wftool.errors import UsageError
 from wftool.fsp import DEFAULT_BAUDRATE
 from wftool.fsp.schedule import DEFAULT_RATE_HZ, RATE_HZ_MAX, RATE_HZ_MIN
 from wftool.sitl.process import DEFAULT_PORT_BASE, SIM_PORT_OFFSET, UART_COUNT
-
-err = Console(stderr=True, highlight=False)
+from wftool.verify.session import VerifySession
 
 
 @click.command("sitl")
@@ -72,7 +70,8 @@ def sitl(
     """Run the virtual FC: the patched SITL with FSP on UART2, until Ctrl-C (or --verify).
 
     With --verify it is judged as a board is: the frame rate against what fsp_rate_hz gives at
-    the FC's PID looptime (read over MSP), unless --expected-rate says otherwise.
+    the FC's PID looptime (read over MSP), unless --expected-rate says otherwise. Without it,
+    --record, --csv and --foxglove read the stream for as long as the FC runs.
     """
     from wftool.sitl.session import Motion, VirtualFcSession
 
@@ -88,16 +87,58 @@ def sitl(
     with session:
         err.print(f"MSP/CLI  [bold]{session.msp_url}[/]")
         err.print(f"FSP      [bold]{session.fsp_url}[/]  (fsp_rate_hz {rate_hz})")
+        if options["expected_rate"] is None:
+            options["expected_rate"] = session.expected_rate_hz
         if verify_s is not None:
-            if options["expected_rate"] is None:
-                options["expected_rate"] = session.expected_rate_hz
             verify_stream(session.fsp_url, DEFAULT_BAUDRATE, verify_s, **options)
             return
+        stream = serving_stream(session.fsp_url, **options)
         err.print("running; Ctrl-C stops it")
         try:
-            session.serve(on_reset=lambda: err.print("the FC reset itself; starting it again"))
+            session.serve(
+                on_reset=lambda: err.print("the FC reset itself; starting it again"),
+                alongside=(lambda stop: stream.run(stop=stop)) if stream else None,
+            )
         except KeyboardInterrupt:
             err.print("stopping")
+        finally:
+            if stream is not None:
+                stream.close()
+
+
+def serving_stream(
+    url: str,
+    *,
+    record_path: Path | None,
+    record_format: str,
+    csv_path: Path | None,
+    foxglove_port: int | None,
+    foxglove_host: str,
+    uplink: bool,
+    uplink_rate: float,
+    clock: str | None,
+    expected_rate: float | None,
+    **_verify_only: Any,
+) -> VerifySession | None:
+    """The stream reader of a virtual FC served without --verify: it records and serves
+    Foxglove if asked (None if not), and judges nothing."""
+    if record_path is None and csv_path is None and foxglove_port is None:
+        return None
+    stream = VerifySession(
+        url,
+        expected_rate_hz=expected_rate,  # kept in the recording, for replay to judge by
+        uplink_rate_hz=uplink_rate if uplink else None,
+        record_path=record_path,
+        csv_path=csv_path,
+        clock=clock,
+        record_format=record_format,
+        foxglove_port=foxglove_port,
+        foxglove_host=foxglove_host,
+    )
+    announce(stream)
+    if record_path is not None:
+        err.print(f"recording to {record_path}")
+    return stream
 
 
 def build_sitl(project_dir: Path | None) -> Path:

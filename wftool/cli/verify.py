@@ -17,6 +17,9 @@ from wftool.fsp import DEFAULT_BAUDRATE, ESTIMATORS
 from wftool.fsp.schedule import RATE_HZ_MAX, RATE_HZ_MIN
 from wftool.verify.criteria import Criteria
 from wftool.verify.dashboard import render
+from wftool.verify.foxglove import DEFAULT_HOST as FOXGLOVE_HOST
+from wftool.verify.foxglove import DEFAULT_PORT as FOXGLOVE_PORT
+from wftool.verify.recording import RECORD_FORMATS
 from wftool.verify.session import (
     VerifyResult,
     VerifySession,
@@ -24,6 +27,8 @@ from wftool.verify.session import (
     fc_frame_rate_hz,
     replay,
 )
+
+err = Console(stderr=True, highlight=False)
 
 
 def _options(*options: Callable) -> Callable:
@@ -56,10 +61,19 @@ run_options = _options(
     click.option("--uplink", is_flag=True, help="Send a command pattern and expect it back in RC."),
     click.option("--uplink-rate", type=float, default=50.0, show_default=True,
                  help="Commands per second."),
-    click.option("--record", "record_path", type=click.Path(dir_okay=False, path_type=Path),
-                 help="Record frames and raw bytes to this MCAP file."),
+    click.option("--record", "record_path", type=click.Path(path_type=Path),
+                 help="Record the run (messages and raw bytes): a rosbag2 directory, or one "
+                 "MCAP file if the path ends in .mcap. `wftool replay` reads either."),
+    click.option("--record-format", type=click.Choice(RECORD_FORMATS),
+                 default=RECORD_FORMATS[0], show_default=True,
+                 help="ROS 2 messages (ros2 bag play, Foxglove) or the older JSON MCAP file."),
     click.option("--csv", "csv_path", type=click.Path(dir_okay=False, path_type=Path),
                  help="Record frames to this CSV file."),
+    click.option("--foxglove", "foxglove_port", type=click.IntRange(0, 65535), is_flag=False,
+                 flag_value=FOXGLOVE_PORT, metavar="[PORT]",
+                 help=f"Serve the stream live to Foxglove (WebSocket) [port {FOXGLOVE_PORT}]."),
+    click.option("--foxglove-host", default=FOXGLOVE_HOST, show_default=True,
+                 help="Address the Foxglove server binds to."),
 )  # fmt: skip
 
 
@@ -103,6 +117,12 @@ def _finish(result: VerifyResult, as_json: bool) -> None:
     result.check()
 
 
+def announce(session: VerifySession) -> None:
+    """Say where the live view is served, if it is."""
+    if session.live_view is not None:
+        err.print(f"Foxglove  [bold]{session.live_view.url}[/]")
+
+
 def verify_stream(
     url: str,
     baud: int,
@@ -111,7 +131,10 @@ def verify_stream(
     uplink: bool,
     uplink_rate: float,
     record_path: Path | None,
+    record_format: str,
     csv_path: Path | None,
+    foxglove_port: int | None,
+    foxglove_host: str,
     expected_rate: float | None,
     as_json: bool,
     clock: str | None,
@@ -128,7 +151,11 @@ def verify_stream(
         record_path=record_path,
         csv_path=csv_path,
         clock=clock,
+        record_format=record_format,
+        foxglove_port=foxglove_port,
+        foxglove_host=foxglove_host,
     )
+    announce(session)
 
     def view(result: VerifyResult) -> Any:
         return render(result.summary, result.latest, result.verdict)
@@ -173,12 +200,15 @@ def verify(
 
 
 @click.command("replay")
-@click.argument("recording", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.argument("recording", type=click.Path(exists=True, path_type=Path))
 @criteria_options
 def replay_command(
     recording: Path, expected_rate: float | None, as_json: bool, clock: str | None, **options: Any
 ) -> None:
-    """The statistics and verdict of a `verify --record` MCAP file, computed again."""
+    """The statistics and verdict of a `verify --record` recording, computed again.
+
+    RECORDING is a rosbag2 directory or an MCAP file, in either format.
+    """
     result = replay(recording, expected_rate, criteria_from(False, **options), clock)
     Console(stderr=as_json).print(render(result.summary, result.latest, result.verdict))
     _finish(result, as_json)

@@ -164,15 +164,45 @@ class VirtualFcSession:
             raise
         return self
 
-    def serve(self, on_reset: Callable[[], None] | None = None) -> None:
+    def serve(
+        self,
+        on_reset: Callable[[], None] | None = None,
+        alongside: Callable[[threading.Event], object] | None = None,
+    ) -> None:
         """Keep the FC up until interrupted: a reset (CLI save, reboot) ends the SITL
-        process, so start it again, as a board's reset circuit would."""
-        while True:
-            time.sleep(0.2)
-            if not self.fc.running:
-                if on_reset is not None:
-                    on_reset()
-                self.fc.start()
+        process, so start it again, as a board's reset circuit would.
+
+        `alongside(stop)` runs in a thread of its own meanwhile (say, reading the FSP
+        stream), until `stop` is set when serving ends; if it ends first, serving ends
+        too, and what it raised is raised here.
+        """
+        stop = threading.Event()
+        failure: list[BaseException] = []
+
+        def run() -> None:
+            try:
+                alongside(stop)
+            except BaseException as exc:
+                failure.append(exc)
+            finally:
+                stop.set()
+
+        thread = None
+        if alongside is not None:
+            thread = threading.Thread(target=run, name="wftool-serve-alongside", daemon=True)
+            thread.start()
+        try:
+            while not stop.wait(0.2):
+                if not self.fc.running:
+                    if on_reset is not None:
+                        on_reset()
+                    self.fc.start()
+        finally:
+            stop.set()
+            if thread is not None:
+                thread.join()
+        if failure:
+            raise failure[0]
 
     def stop(self) -> None:
         if self._feeder is not None:

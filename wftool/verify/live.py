@@ -11,12 +11,17 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from wftool.errors import PortError
 from wftool.fsp import FspPort, StatePacket
 from wftool.verify.monitor import StreamMonitor, StreamSummary
 from wftool.verify.recording import Event, Recorder
+from wftool.verify.ros2 import HealthSampler
 from wftool.verify.uplink import pattern_command
+
+if TYPE_CHECKING:
+    from wftool.verify.foxglove import FoxgloveLive
 
 REFRESH_S = 0.25
 READ_TIMEOUT_S = 0.05
@@ -41,11 +46,13 @@ def run_live(
     stop: threading.Event | None = None,
     now: Callable[[], float] = time.monotonic,
     on_packets: Callable[[Sequence[StatePacket], float], None] | None = None,
+    live_view: FoxgloveLive | None = None,
 ) -> StreamSummary:
     """Verify the stream on `options.url` until the duration is up; the final summary.
 
-    The port is only read here; the monitor decodes (one decoder per connection).
-    `on_packets` gets each read's packets and its arrival time, after the monitor has them.
+    The port is only read here; the monitor decodes (one decoder per connection). Each
+    read's packets go to `recorder` and `live_view` with a health snapshot (at most 10 Hz);
+    `on_packets` gets them and their arrival time, after the monitor has them.
     """
     start = now()
     end = start + options.duration_s if options.duration_s is not None else float("inf")
@@ -57,6 +64,7 @@ def run_live(
     next_command = start
     next_refresh = start
     connected_once = False
+    health = HealthSampler(monitor)
 
     def record(event: Event) -> None:
         if recorder is not None:
@@ -102,8 +110,12 @@ def run_live(
                 if data:
                     record(Event("bytes", t, data))
                     packets = monitor.feed(data, t)
-                    if recorder is not None:
-                        recorder.packets(packets)
+                    if recorder is not None or live_view is not None:
+                        snapshot = health.sample(packets, t)
+                        if recorder is not None:
+                            recorder.packets(packets, snapshot)
+                        if live_view is not None:
+                            live_view.packets(packets, snapshot)
                     if on_packets is not None and packets:
                         on_packets(packets, t)
                 if period is not None and t >= next_command:

@@ -1,9 +1,15 @@
-"""Recordings of a verify run: MCAP (Foxglove, PlotJuggler) and CSV.
+"""Recordings of a verify run: ROS 2 or JSON MCAP (Foxglove, PlotJuggler) and CSV.
 
-The MCAP file holds two JSON-schema channels: `/fsp/frame`, one message per decoded frame
-stamped with its corrected OBC time, and `/fsp/events`, the raw byte chunks and connection
-and command events exactly as the monitor saw them, so `wftool replay` reproduces the run's
-statistics. Files are finished on close, also when the run is interrupted.
+Two MCAP formats, both read by `wftool replay`:
+
+- `ros2` (default): a rosbag2 directory that ROS 2 plays; see `wftool.verify.rosbag`.
+- `json`: one MCAP file with two JSON-schema channels: `/fsp/frame`, one message per decoded
+  frame stamped with its corrected OBC time, and `/fsp/events`, the raw byte chunks and
+  connection and command events.
+
+Either way `/fsp/events` holds what the monitor saw, exactly, so `wftool replay` reproduces
+the run's statistics. Files are finished on close, also when the run is interrupted, and
+when the disk fills up (`wftool.verify.mcapfile`).
 """
 
 from __future__ import annotations
@@ -12,6 +18,7 @@ import base64
 import csv
 import json
 import math
+import struct
 import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
@@ -20,13 +27,15 @@ from typing import TYPE_CHECKING, Any, TextIO
 
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
-from mcap.writer import Writer
 
 from wftool import __version__
 from wftool.errors import UsageError
 from wftool.extras import require
 from wftool.fsp import ESTIMATORS, SensorFrame, StatePacket
+from wftool.verify.mcapfile import McapFile, indexed_messages
 from wftool.verify.monitor import StreamMonitor
+from wftool.verify.ros2 import StreamHealth, decode_event
+from wftool.verify.rosbag import RosbagWriter, bag_file
 from wftool.verify.uplink import UplinkTracker
 
 if TYPE_CHECKING:
@@ -35,6 +44,7 @@ if TYPE_CHECKING:
 FRAME_TOPIC = "/fsp/frame"
 EVENT_TOPIC = "/fsp/events"
 METADATA_NAME = "wftool.verify"
+RECORD_FORMATS = ("ros2", "json")
 
 _VECTOR = {"type": "array", "items": {"type": ["number", "null"]}}
 FRAME_SCHEMA = {
@@ -111,20 +121,30 @@ class Event:
 
 
 class Recorder:
-    """Writes what a run sees to MCAP and/or CSV; call `close()` (or use `with`)."""
+    """Writes what a run sees to MCAP and/or CSV; call `close()` (or use `with`).
+
+    With `record_format="ros2"`, `mcap_path` names the rosbag2 directory to create.
+    """
 
     def __init__(
-        self, mcap_path: Path | None, csv_path: Path | None, metadata: dict[str, str]
+        self,
+        mcap_path: Path | None,
+        csv_path: Path | None,
+        metadata: dict[str, str],
+        record_format: str = "ros2",
     ) -> None:
         # Monotonic OBC times become Unix times in the file, for tools that show dates.
         self._wall_offset = time.time() - time.monotonic()
-        self._mcap_file = self._writer = None
+        self._writer: McapFile | None = None
+        self._bag: RosbagWriter | None = None
         self._csv_file: TextIO | None = None
+        if record_format not in RECORD_FORMATS:
+            raise UsageError(f"unknown recording format {record_format!r}: ros2 or json")
         try:
-            if mcap_path is not None:
-                self._mcap_file = open(mcap_path, "wb")  # noqa: SIM115 - closed in close()
-                self._writer = Writer(self._mcap_file)
-                self._writer.start(profile="", library=f"wftool {__version__}")
+            if mcap_path is not None and record_format == "ros2":
+                self._bag = RosbagWriter(mcap_path, METADATA_NAME, metadata)
+            elif mcap_path is not None:
+                self._writer = McapFile(mcap_path, "", f"wftool {__version__}")
                 self._writer.add_metadata(METADATA_NAME, {**metadata, "wftool": __version__})
                 self._frame_channel = self._channel(FRAME_TOPIC, FRAME_SCHEMA)
                 self._event_channel = self._channel(EVENT_TOPIC, EVENT_SCHEMA)
@@ -146,6 +166,8 @@ class Recorder:
         return int((t + self._wall_offset) * 1e9)
 
     def event(self, event: Event) -> None:
+        if self._bag is not None:
+            self._bag.event(event.kind, event.t, event.data, event.rc)
         if self._writer is None:
             return
         message: dict[str, Any] = {"kind": event.kind, "t": event.t}
@@ -158,7 +180,12 @@ class Recorder:
             self._event_channel, log_time=ns, publish_time=ns, data=json.dumps(message).encode()
         )
 
-    def packets(self, packets: Sequence[StatePacket]) -> None:
+    def packets(self, packets: Sequence[StatePacket], health: StreamHealth | None = None) -> None:
+        """The frames of `packets`; `health`, a new snapshot or the last one (ROS 2 only)."""
+        if self._bag is not None:
+            self._bag.packets(packets, health)
+        if self._writer is None and self._csv_file is None:
+            return
         for packet in packets:
             for frame in packet.frames:
                 self._frame(packet, frame)
@@ -198,13 +225,16 @@ class Recorder:
             )  # fmt: skip
 
     def close(self) -> None:
-        if self._writer is not None:
-            self._writer.finish()
-            self._writer = None
-        for handle in (self._mcap_file, self._csv_file):
-            if handle is not None:
-                handle.close()
-        self._mcap_file = self._csv_file = None
+        writer, bag, csv_file = self._writer, self._bag, self._csv_file
+        self._writer = self._bag = self._csv_file = None
+        try:
+            if bag is not None:
+                bag.close()
+            if writer is not None:
+                writer.finish()
+        finally:
+            if csv_file is not None:
+                csv_file.close()
 
     def __enter__(self) -> Recorder:
         return self
@@ -214,7 +244,8 @@ class Recorder:
 
 
 def read_recording(path: Path) -> tuple[dict[str, str], Iterator[Event]]:
-    """The run's metadata and its events in recorded order."""
+    """The run's metadata and its events in recorded order (either format)."""
+    path = bag_file(path)
     try:
         handle = open(path, "rb")  # noqa: SIM115 - closed by the generator
         reader = make_reader(handle)
@@ -225,20 +256,32 @@ def read_recording(path: Path) -> tuple[dict[str, str], Iterator[Event]]:
     except (OSError, McapError, ValueError) as exc:
         raise UsageError(f"cannot read recording {path}: {exc}") from None
 
+    def payloads() -> Iterator[tuple[str, bytes]]:
+        """(encoding, data) of each event: through the indexes if the file has them."""
+        indexed = indexed_messages(handle, reader.get_summary(), EVENT_TOPIC)
+        if indexed is not None:
+            encoding, messages = indexed
+            for data in messages:
+                yield encoding, data
+            return
+        for _, channel, message in reader.iter_messages(topics=[EVENT_TOPIC], log_time_order=False):
+            yield channel.message_encoding, message.data
+
     def events() -> Iterator[Event]:
         with handle:
             try:
-                for _, _, message in reader.iter_messages(
-                    topics=[EVENT_TOPIC], log_time_order=False
-                ):
-                    raw = json.loads(message.data)
+                for encoding, data in payloads():
+                    if encoding == "cdr":
+                        yield Event(*decode_event(data))
+                        continue
+                    raw = json.loads(data)
                     yield Event(
                         raw["kind"],
                         raw["t"],
                         base64.b64decode(raw.get("data", "")),
                         tuple(raw.get("rc", ())),
                     )
-            except (McapError, ValueError, KeyError) as exc:
+            except (McapError, ValueError, KeyError, struct.error) as exc:
                 raise UsageError(f"recording {path} is damaged: {exc}") from None
 
     return metadata, events()

@@ -24,9 +24,10 @@ from wftool.fc.msp import MspClient
 from wftool.fsp import DEFAULT_BAUDRATE, ESTIMATORS, SensorFrame, StatePacket
 from wftool.fsp.schedule import frame_rate_hz
 from wftool.verify.criteria import Criteria, Verdict, judge
+from wftool.verify.foxglove import DEFAULT_HOST, FoxgloveLive
 from wftool.verify.live import LiveOptions, run_live
 from wftool.verify.monitor import StreamMonitor, StreamSummary
-from wftool.verify.recording import Recorder, replay_recording, run_metadata
+from wftool.verify.recording import RECORD_FORMATS, Recorder, replay_recording, run_metadata
 from wftool.verify.uplink import UplinkTracker
 
 
@@ -86,10 +87,13 @@ class VerifySession:
     """One verify run on a port: `run()` until the duration is up, then the result.
 
     `uplink_rate_hz` sends the uplink pattern (None sends nothing); `criteria.uplink` is
-    what judges it (`criteria_for(uplink=True)`). `record_path` (MCAP) and `csv_path` are
-    created here, so a path that cannot be written fails before the run, and finished when
-    the run ends, however it ends (`close()` them when the session is never run). `clock`
-    names the estimator of the frames' OBC times (`wftool.fsp.ESTIMATORS`; None: the default).
+    what judges it (`criteria_for(uplink=True)`). `record_path` (in `record_format`, see
+    `wftool.verify.recording`) and `csv_path` are created here, so a path that cannot be
+    written fails before the run, and finished when the run ends, however it ends
+    (`close()` them when the session is never run). `foxglove_port` serves the stream live
+    to Foxglove on `foxglove_host` (port 0: any free one; `live_view.url` says which),
+    from now until `close()`. `clock` names the estimator of the frames' OBC times
+    (`wftool.fsp.ESTIMATORS`; None: the default).
     """
 
     def __init__(
@@ -104,16 +108,26 @@ class VerifySession:
         record_path: Path | None = None,
         csv_path: Path | None = None,
         clock: str | None = None,
+        record_format: str = RECORD_FORMATS[0],
+        foxglove_port: int | None = None,
+        foxglove_host: str = DEFAULT_HOST,
     ) -> None:
         clock = clock or ESTIMATORS[0]
         self.options = LiveOptions(url, baudrate, duration_s, uplink_rate_hz)
         self.criteria = criteria or criteria_for(uplink=uplink_rate_hz is not None)
         uplink = UplinkTracker() if uplink_rate_hz is not None else None
         self.monitor = StreamMonitor(url, expected_rate_hz, uplink=uplink, clock=clock)
-        self._recorder = None
+        self._recorder: Recorder | None = None
+        self.live_view: FoxgloveLive | None = None
+        if foxglove_port is not None:  # first: a server closes without a trace, files do not
+            self.live_view = FoxgloveLive(foxglove_port, foxglove_host)
         if record_path or csv_path:
             metadata = run_metadata(url, baudrate, expected_rate_hz, uplink_rate_hz, clock)
-            self._recorder = Recorder(record_path, csv_path, metadata)
+            try:
+                self._recorder = Recorder(record_path, csv_path, metadata, record_format)
+            except BaseException:
+                self.close()
+                raise
 
     def run(
         self,
@@ -125,17 +139,23 @@ class VerifySession:
         four times a second. Ctrl-C propagates: `result()` then judges what was seen."""
         try:
             summary = run_live(
-                self.options, self.monitor, self._recorder, on_refresh, stop, on_packets=on_packets
-            )
+                self.options, self.monitor, self._recorder, on_refresh, stop,
+                on_packets=on_packets, live_view=self.live_view,
+            )  # fmt: skip
         finally:
             self.close()
         return self.result(summary)
 
     def close(self) -> None:
-        """Finish the recording files (if any)."""
-        if self._recorder is not None:
-            self._recorder.close()
-            self._recorder = None
+        """Stop the live view, then finish the recording files (if any)."""
+        live_view, recorder = self.live_view, self._recorder
+        self.live_view = self._recorder = None
+        try:
+            if live_view is not None:
+                live_view.close()
+        finally:
+            if recorder is not None:
+                recorder.close()
 
     def judge(self, summary: StreamSummary) -> Verdict:
         return judge(summary, self.criteria)
@@ -152,7 +172,8 @@ def replay(
     criteria: Criteria | None = None,
     clock: str | None = None,
 ) -> VerifyResult:
-    """The result of a `verify --record` MCAP file, computed again. The uplink is judged
+    """The result of a `verify --record` recording (either format; a rosbag2 directory or
+    an MCAP file), computed again. The uplink is judged
     when the recorded run sent it, whatever `criteria.uplink` says; `clock` None uses the
     recorded run's estimator."""
     monitor = replay_recording(path, expected_rate_hz, clock)

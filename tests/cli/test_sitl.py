@@ -1,0 +1,69 @@
+"""`wftool sitl` without --verify, serving: it records and serves Foxglove while the FC runs.
+
+wftool runs in its own process, as a user starts it, against the patched SITL; a Foxglove
+protocol client watches, rosbags reads the recording, and `wftool replay` judges it.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from rosbags.rosbag2 import Reader
+
+from tests.conftest import run_cli
+from tests.sitl.test_process import sitl_pids, wait_for
+from wftool.sitl.process import free_port_base
+
+pytestmark = pytest.mark.slow
+
+
+def test_serving_records_and_serves_foxglove_until_interrupted(
+    sitl_binary: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    pytest.importorskip("foxglove", reason="needs the Foxglove SDK: wftool[foxglove]")
+    from tests.verify.test_foxglove import Viewer
+
+    base, bag = free_port_base(), tmp_path / "served"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "wftool", "sitl", "--binary", str(sitl_binary),
+         "--workdir", str(tmp_path / "fc"), "--port-base", str(base), "--no-motion",
+         "--record", str(bag), "--foxglove", "0", "--clock", "kalman"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # as from a terminal
+    )  # fmt: skip
+    try:
+        assert process.stderr is not None
+        said = []
+        for line in process.stderr:
+            said.append(line)
+            if line.startswith("running"):
+                break
+        url = next(m[1] for line in said if (m := re.match(r"Foxglove +(ws://\S+)", line)))
+        viewer = Viewer(url)
+        imu = viewer.receive(400).get("/fsp/imu", [])
+        viewer.close()
+        assert len(imu) > 50  # live frames, while the FC keeps running
+        time.sleep(2.0)
+        process.send_signal(signal.SIGINT)  # Ctrl-C: the normal end of serving
+        assert process.wait(30) == 0, process.stderr.read()
+    finally:
+        process.kill()
+        process.wait()
+    assert wait_for(lambda: not sitl_pids(base), 15)
+
+    with Reader(bag) as reader:  # finished on the way out, and a rosbag2 directory
+        counts = {c.topic: c.msgcount for c in reader.connections}
+    assert counts["/fsp/imu"] > 2000
+    code, out, err = run_cli(capsys, "replay", str(bag), "--json")
+    replayed = json.loads(out)
+    assert code == 0, err  # judged as a board: the rate the FC's settings give, no loss
+    assert replayed["frames"] == counts["/fsp/imu"]
+    assert replayed["clock_estimator"] == "kalman"
+    assert replayed["expected_rate_hz"] and replayed["lost_frames"] == 0

@@ -1,0 +1,182 @@
+"""ROS 2 messages: our definitions against ROS 2's, our CDR bytes against rosbags' codec.
+
+rosbags is the independent side: its ROS 2 Humble type store holds the standard message
+definitions, its parser reads the schemas we embed, and its CDR (de)serializer knows
+nothing of our `struct` layouts.
+"""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from hypothesis import given, settings
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+from tests.fsp.strategies import frames
+from wftool.fsp import SensorFrame
+from wftool.verify import ros2
+from wftool.verify.ros2 import FrameEncoder, StreamHealth
+
+ALL_TYPES = (
+    ros2.IMU,
+    ros2.BATTERY_STATE,
+    ros2.RC_CHANNELS,
+    ros2.MOTOR_RPM,
+    ros2.ATTITUDE,
+    ros2.STREAM_HEALTH,
+    ros2.STREAM_EVENT,
+)
+
+
+def typestore_of(*kinds: ros2.MessageType):
+    """A type store that knows only what our schemas say (definitions and dependencies)."""
+    store = get_typestore(Stores.EMPTY)
+    for kind in kinds:
+        store.register(get_types_from_msg(kind.schema, kind.name))
+    return store
+
+
+@pytest.fixture(scope="module")
+def store():
+    return typestore_of(*ALL_TYPES)
+
+
+@pytest.mark.parametrize(
+    "name",
+    [
+        "sensor_msgs/msg/Imu",
+        "sensor_msgs/msg/BatteryState",
+        "std_msgs/msg/Header",
+        "builtin_interfaces/msg/Time",
+        "geometry_msgs/msg/Quaternion",
+        "geometry_msgs/msg/Vector3",
+    ],
+)
+def test_standard_types_match_ros2(store, name):
+    """Field for field, the standard types we embed are ROS 2 Humble's (and Jazzy's)."""
+    ours = store.fielddefs[name][1]
+    for distro in (Stores.ROS2_HUMBLE, Stores.ROS2_JAZZY):
+        assert ours == get_typestore(distro).fielddefs[name][1], (name, distro)
+
+
+def test_each_schema_carries_its_dependencies():
+    for kind in ALL_TYPES:
+        store = typestore_of(kind)  # alone: nothing else registered
+        assert kind.name in store.fielddefs
+        store.generate_msgdef(kind.name, ros_version=2)  # raises on an unknown field type
+
+
+def _frame(**values) -> SensorFrame:
+    fields = dict(
+        sample_time_us=123, acc=(100, -2048, 4096), acc_1g=2048, gyro_scale=0.0609756,
+        gyro=(1000, -32768, 32767), attitude=(-32768, 0, 0, 0),
+        rc=(1500, 1400, 1600, 1000, 2000, 990), rpm=(0, 12000, 65535, 300), vbat=1587,
+    )  # fmt: skip
+    fields.update(values)
+    return SensorFrame(**fields)
+
+
+def test_imu_units_and_stamp(store):
+    frame = _frame()
+    stamp = 1_700_000_123_456_789_012
+    msg = store.deserialize_cdr(FrameEncoder(0).imu(frame, stamp), "sensor_msgs/msg/Imu")
+    assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == (1_700_000_123, 456_789_012)
+    assert msg.header.frame_id == "fc"
+    q = msg.orientation
+    assert (q.w, q.x, q.y, q.z) == (-1.0, 0.0, 0.0, 0.0)  # the level craft of spec §4
+    gyro_scale = frame.gyro_scale  # as the wire's float32 holds it
+    expected_rad_s = [v * gyro_scale * math.pi / 180 for v in (1000, -32768, 32767)]
+    w = msg.angular_velocity
+    assert [w.x, w.y, w.z] == pytest.approx(expected_rad_s, rel=1e-12)
+    a = msg.linear_acceleration
+    assert [a.x, a.y, a.z] == pytest.approx([100 / 2048 * 9.80665, -9.80665, 19.6133], rel=1e-12)
+    for covariance in (
+        msg.orientation_covariance,
+        msg.angular_velocity_covariance,
+        msg.linear_acceleration_covariance,
+    ):
+        assert list(covariance) == [0.0] * 9  # known quantity, covariance unknown
+
+
+def test_missing_attitude_and_acc_calibration_say_no_estimate(store):
+    frame = _frame(attitude=(0, 0, 0, 0), acc_1g=0)
+    msg = store.deserialize_cdr(FrameEncoder(0).imu(frame, 0), "sensor_msgs/msg/Imu")
+    assert msg.orientation_covariance[0] == -1.0  # REP-145 / sensor_msgs: no estimate
+    assert msg.linear_acceleration_covariance[0] == -1.0
+    assert msg.angular_velocity_covariance[0] == 0.0
+    a = msg.linear_acceleration
+    assert (a.x, a.y, a.z) == (0.0, 0.0, 0.0)  # finite, for tools that ignore the -1
+
+
+def test_battery_rc_rpm_attitude(store):
+    frame = _frame()
+    encoder = FrameEncoder(0)
+    battery = store.deserialize_cdr(encoder.battery(frame, 5), "sensor_msgs/msg/BatteryState")
+    assert battery.voltage == pytest.approx(15.87)
+    assert math.isnan(battery.current) and math.isnan(battery.percentage)
+    assert battery.present and battery.power_supply_status == 0
+    assert len(battery.cell_voltage) == 0 and battery.location == ""
+    rc = store.deserialize_cdr(encoder.rc(frame, 5), "wftool_msgs/msg/RcChannels")
+    assert (rc.roll, rc.pitch, rc.yaw, rc.throttle, rc.aux3, rc.aux4) == frame.rc
+    rpm = store.deserialize_cdr(encoder.rpm(frame, 5), "wftool_msgs/msg/MotorRpm")
+    assert list(rpm.rpm) == [0, 12000, 65535, 300]
+    attitude = store.deserialize_cdr(encoder.attitude(frame, 5), "wftool_msgs/msg/Attitude")
+    assert (attitude.roll_deg, attitude.pitch_deg, attitude.yaw_deg) == pytest.approx(
+        frame.euler_deg
+    )
+
+
+def test_health(store):
+    health = StreamHealth(
+        t=12.5, seq=2**24 - 1, epoch=3, e1=True, clock_locked=False, connected=True,
+        packets=10, frames=20, lost_frames=2**40, lost_packets=5, fc_drops=6,
+        rejected_chunks=7, resets=3, reconnects=1,
+    )  # fmt: skip
+    encoder = FrameEncoder(1_000_000_000_000)
+    msg = store.deserialize_cdr(encoder.health(health), "wftool_msgs/msg/StreamHealth")
+    assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == (1012, 500_000_000)
+    for field in ("seq", "epoch", "e1", "clock_locked", "connected", "packets", "frames",
+                  "lost_frames", "lost_packets", "fc_drops", "rejected_chunks", "resets",
+                  "reconnects"):  # fmt: skip
+        assert getattr(msg, field) == getattr(health, field), field
+
+
+@pytest.mark.parametrize(
+    ("kind", "data", "rc"),
+    [
+        ("bytes", b"\x01\x02\x03", ()),
+        ("bytes", bytes(range(256)) * 3, ()),
+        ("command", b"", (1100, 1500, -1, 1000, 2000, 32767)),
+        ("connected", b"", ()),
+    ],
+)
+def test_event_round_trip_and_rosbags_agree(store, kind, data, rc):
+    message = ros2.encode_event(kind, 1234.000001, data, rc)
+    assert ros2.decode_event(message) == (kind, 1234.000001, data, rc)
+    decoded = store.deserialize_cdr(message, "wftool_msgs/msg/StreamEvent")
+    assert ros2.EVENT_KINDS[decoded.kind] == kind
+    assert bytes(decoded.data) == data and tuple(decoded.rc) == rc
+    assert store.serialize_cdr(decoded, "wftool_msgs/msg/StreamEvent") == message
+
+
+@settings(max_examples=200, deadline=None)
+@given(frame=frames)
+def test_any_frame_encodes_as_rosbags_would(frame):
+    """Over every wire value: rosbags decodes our bytes and re-encodes them identically."""
+    store = typestore_of(*ALL_TYPES)
+    encoder = FrameEncoder(0)
+    stamp = 1_700_000_000_000_000_001
+    for name, message in (
+        ("sensor_msgs/msg/Imu", encoder.imu(frame, stamp)),
+        ("sensor_msgs/msg/BatteryState", encoder.battery(frame, stamp)),
+        ("wftool_msgs/msg/RcChannels", encoder.rc(frame, stamp)),
+        ("wftool_msgs/msg/MotorRpm", encoder.rpm(frame, stamp)),
+        ("wftool_msgs/msg/Attitude", encoder.attitude(frame, stamp)),
+    ):
+        decoded = store.deserialize_cdr(message, name)
+        assert store.serialize_cdr(decoded, name) == message, name
+    imu = store.deserialize_cdr(encoder.imu(frame, stamp), "sensor_msgs/msg/Imu")
+    w, x, y, z = frame.attitude
+    assert (imu.orientation.w, imu.orientation.x) == (w / 32768, x / 32768)
+    assert (imu.orientation.y, imu.orientation.z) == (y / 32768, z / 32768)

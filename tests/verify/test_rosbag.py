@@ -1,0 +1,399 @@
+"""ROS 2 recordings, read back by rosbags (an independent rosbag2/MCAP reader and CDR codec).
+
+A synthetic flight goes through the real decoder and recorder; a second, separate decoder
+gives the frames each message is compared with. Every message of every topic is checked,
+values and stamps; `wftool replay` must reproduce the run from the same directory.
+"""
+
+from __future__ import annotations
+
+import errno
+import itertools
+import json
+import math
+import random
+import shutil
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+from rosbags.highlevel import AnyReader
+from rosbags.rosbag2 import Reader
+from rosbags.typesys import Stores, get_typestore
+
+from wftool.errors import RecordingError, UsageError
+from wftool.fsp import SensorFrame, StatePacket
+from wftool.fsp.encoder import encode_state
+from wftool.verify import mcapfile
+from wftool.verify.monitor import StreamMonitor
+from wftool.verify.recording import Event, Recorder, read_recording, replay_recording
+from wftool.verify.ros2 import HealthSampler, StreamHealth, decode_event
+
+PERIOD_US = 953
+PACKETS_PER_READ = 3
+READ_S = PACKETS_PER_READ * 2 * PERIOD_US * 1e-6
+
+
+def flight(packets: int, seed: int = 1) -> list[bytes]:
+    """Reads of a random but plausible E1 stream: RC held for a while, some blank frames."""
+    rng = random.Random(seed)
+    rc = (1500, 1500, 1500, 1000, 1000, 1000)
+    reads, chunk = [], b""
+    t_us = 4_294_000_000  # wraps early on
+    for seq in range(packets):
+        frames = []
+        for _ in range(2):
+            if rng.random() < 0.05:
+                rc = (rng.randint(1000, 2000), 1500, rng.randint(990, 2010), 1000, 1000, 2000)
+            blank = rng.random() < 0.02  # no attitude, no acc calibration
+            attitude = (-32768, *(rng.randint(-900, 900) for _ in range(3)))
+            frames.append(
+                SensorFrame(
+                    t_us % 2**32,
+                    tuple(rng.randint(-4000, 4000) for _ in range(3)),
+                    0 if blank else 2048,
+                    0.0609756,
+                    tuple(rng.randint(-32768, 32767) for _ in range(3)),
+                    (0, 0, 0, 0) if blank else attitude,
+                    rc,
+                    tuple(rng.randint(0, 65535) for _ in range(4)),
+                    rng.randint(1400, 1680),
+                )
+            )
+            t_us += PERIOD_US
+        packet = StatePacket((t_us + 90) % 2**32, tuple(frames), seq, True, seq // 500)
+        chunk += encode_state(packet)
+        if seq % PACKETS_PER_READ == PACKETS_PER_READ - 1:
+            reads.append(chunk)
+            chunk = b""
+    return [*reads, chunk] if chunk else reads
+
+
+def record(recorder: Recorder, reads: list[bytes], t0: float = 5000.0):
+    """Feed `reads` the way the live loop does; the monitor and the health snapshots."""
+    monitor = StreamMonitor("socket://sim:5762")
+    sampler = HealthSampler(monitor)
+    snapshots: list[StreamHealth] = []
+    t = t0
+    monitor.connected(t)
+    recorder.event(Event("connected", t))
+    for data in reads:
+        t += READ_S
+        recorder.event(Event("bytes", t, data))
+        packets = monitor.feed(data, t)
+        health = sampler.sample(packets, t)
+        if health is not None and (not snapshots or health is not snapshots[-1]):
+            snapshots.append(health)
+        recorder.packets(packets, health)
+    recorder.event(Event("command", t, rc=(1100, 1500, 1500, 1000, 1000, 1000)))
+    monitor.disconnected(t)
+    recorder.event(Event("disconnected", t))
+    return monitor, snapshots
+
+
+def decoded_frames(reads: list[bytes], t0: float = 5000.0) -> list[SensorFrame]:
+    """The frames as a separate decoder sees them, with their OBC capture times."""
+    monitor = StreamMonitor("check")
+    monitor.connected(t0)
+    frames, t = [], t0
+    for data in reads:
+        t += READ_S
+        for packet in monitor.feed(data, t):
+            frames.extend(packet.frames)
+    return frames
+
+
+def stamp_of(message) -> int:
+    return message.header.stamp.sec * 1_000_000_000 + message.header.stamp.nanosec
+
+
+def read_bag(path: Path) -> dict[str, list[tuple[int, object]]]:
+    """Every message by topic, (log time, message), via rosbags with only the file's schemas."""
+    topics: dict[str, list] = {}
+    with AnyReader([path], default_typestore=get_typestore(Stores.EMPTY)) as reader:
+        for connection, log_time, raw in reader.messages():
+            message = reader.deserialize(raw, connection.msgtype)
+            topics.setdefault(connection.topic, []).append((log_time, message))
+    return topics
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory: pytest.TempPathFactory):
+    bag = tmp_path_factory.mktemp("bags") / "flight"
+    reads = flight(3000)
+    with Recorder(bag, None, {"port": "socket://sim:5762"}) as recorder:
+        monitor, snapshots = record(recorder, reads)
+    return bag, reads, monitor, snapshots
+
+
+def test_layout_is_a_rosbag2_directory(recorded):
+    bag, *_ = recorded
+    assert sorted(p.name for p in bag.iterdir()) == ["flight_0.mcap", "metadata.yaml"]
+    with Reader(bag) as reader:  # rosbags' rosbag2 reader: metadata.yaml + storage plugin
+        counts = {c.topic: c.msgcount for c in reader.connections}
+        types = {c.topic: c.msgtype for c in reader.connections}
+        in_file = sum(1 for _ in reader.messages())
+        assert reader.message_count == in_file == sum(counts.values())
+        assert reader.storage.metadata.custom["port"] == "socket://sim:5762"
+    assert types["/fsp/imu"] == "sensor_msgs/msg/Imu"
+    assert types["/fsp/battery"] == "sensor_msgs/msg/BatteryState"
+    assert counts["/fsp/imu"] == counts["/fsp/rpm"] == 6000
+
+
+@pytest.fixture(scope="module")
+def read_back(recorded):
+    """(frames from a separate decoder, every message by topic, the bag's wall offset)."""
+    bag, reads, *_ = recorded
+    with Reader(bag) as reader:
+        offset = int(reader.storage.metadata.custom["wall_offset_ns"])
+    return decoded_frames(reads), read_bag(bag), offset
+
+
+def assert_imu_matches(message, frame: SensorFrame) -> None:
+    """An Imu message carries `frame` in ROS units (the formulas of the module docstring)."""
+    w, x, y, z = frame.attitude
+    q = message.orientation
+    assert (q.w, q.x, q.y, q.z) == (w / 32768, x / 32768, y / 32768, z / 32768)
+    assert message.orientation_covariance[0] == (0.0 if any(frame.attitude) else -1.0)
+    rad_s = [v * frame.gyro_scale * math.pi / 180 for v in frame.gyro]
+    av = message.angular_velocity
+    assert [av.x, av.y, av.z] == pytest.approx(rad_s, rel=1e-12)
+    a = message.linear_acceleration
+    if frame.acc_1g:
+        m_s2 = [v / frame.acc_1g * 9.80665 for v in frame.acc]
+        assert [a.x, a.y, a.z] == pytest.approx(m_s2, rel=1e-12)
+        assert message.linear_acceleration_covariance[0] == 0.0
+    else:
+        assert message.linear_acceleration_covariance[0] == -1.0
+
+
+def test_every_imu_and_rpm_message_matches_its_frame(read_back):
+    frames, topics, offset = read_back
+    imu, rpm = topics["/fsp/imu"], topics["/fsp/rpm"]
+    assert len(imu) == len(rpm) == len(frames) == 6000
+    for frame, (log_time, message), (_, rpm_message) in zip(frames, imu, rpm):
+        stamp = offset + int(frame.obc_time * 1e9)
+        assert stamp_of(message) == stamp_of(rpm_message) == stamp
+        assert abs(log_time - stamp) < 50_000_000  # log time: when the OBC read it
+        assert_imu_matches(message, frame)
+        assert tuple(rpm_message.rpm) == frame.rpm
+
+
+def test_rc_steps_and_battery_rate(read_back):
+    frames, topics, offset = read_back
+    # Before its first lock the estimator gives the packets of one read the same times.
+    by_stamp: dict[int, list[SensorFrame]] = {}
+    for frame in frames:
+        by_stamp.setdefault(offset + int(frame.obc_time * 1e9), []).append(frame)
+    assert max(map(len, by_stamp.values())) <= PACKETS_PER_READ
+    rc = [(stamp_of(m), m) for _, m in topics["/fsp/rc"]]
+    for stamp, message in rc:
+        fields = (message.roll, message.pitch, message.yaw, message.throttle, message.aux3,
+                  message.aux4)  # fmt: skip
+        assert fields in [f.rc for f in by_stamp[stamp]]
+    written = [stamp for stamp, _ in rc]
+    stamps = [offset + int(f.obc_time * 1e9) for f in frames]  # capture order
+    for (before, old), (after, new) in zip(zip(stamps, frames), zip(stamps[1:], frames[1:])):
+        if old.rc != new.rc:  # a step: both sides are there
+            assert before in written and after in written
+    gaps = [b - a for a, b in itertools.pairwise(written)]
+    assert max(gaps) <= 100_000_000 + PERIOD_US * 1000
+    assert len(written) < len(frames) / 3  # held values are not repeated per frame
+
+    battery = [m for _, m in topics["/fsp/battery"]]
+    span_s = (stamps[-1] - stamps[0]) / 1e9
+    assert len(battery) == pytest.approx(span_s * 10, abs=1.5)
+    for message in battery:
+        voltages = [f.vbat / 100 for f in by_stamp[stamp_of(message)]]
+        assert any(message.voltage == pytest.approx(v) for v in voltages)
+
+
+def test_health_snapshots_are_all_there(recorded):
+    bag, _, monitor, snapshots = recorded
+    health = [m for _, m in read_bag(bag)["/fsp/health"]]
+    assert len(health) == len(snapshots) > 50
+    for message, snapshot in zip(health, snapshots):
+        assert (message.seq, message.frames, message.fc_drops) == (
+            snapshot.seq, snapshot.frames, snapshot.fc_drops,
+        )  # fmt: skip
+    last = health[-1]
+    assert last.e1 and last.clock_locked and last.connected
+    assert last.fc_drops == monitor.summary().fc_drops > 0
+
+
+def test_replay_reproduces_the_run(recorded):
+    bag, _, monitor, _ = recorded
+    assert replay_recording(bag).summary() == monitor.summary()
+    assert replay_recording(bag / "flight_0.mcap").summary() == monitor.summary()
+    _, events = read_recording(bag)
+    kinds = [e.kind for e in events]
+    assert kinds[0] == "connected" and kinds[-2:] == ["command", "disconnected"]
+
+
+def test_a_mcap_path_is_the_same_recording_in_one_file(recorded, tmp_path: Path):
+    """`--record run.mcap` in the ROS 2 format: the bag's MCAP file alone, at that path."""
+    bag, reads, monitor, _ = recorded
+    single = tmp_path / "run.mcap"
+    with Recorder(single, None, {"port": "socket://sim:5762"}) as recorder:
+        record(recorder, reads)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.mcap"]
+    with Reader(single) as reader:  # rosbags opens one storage file as a bag, as rosbag2 does
+        counts = {c.topic: c.msgcount for c in reader.connections}
+        assert reader.message_count == sum(counts.values())
+    with Reader(bag) as reader:
+        assert counts == {c.topic: c.msgcount for c in reader.connections}
+    topics = read_bag(single)
+    for frame, (_, message) in zip(decoded_frames(reads), topics["/fsp/imu"], strict=True):
+        assert_imu_matches(message, frame)
+    assert replay_recording(single).summary() == monitor.summary()
+
+
+@pytest.mark.parametrize("record_format", ["ros2", "json"])
+def test_events_read_through_the_indexes_are_every_event_in_written_order(
+    tmp_path: Path, record_format: str
+):
+    """`read_recording` jumps to the events through the MCAP indexes; the mcap library's
+    own reader, walking every record, must find the same events in the same order."""
+    path = tmp_path / "run.mcap"
+    reads = flight(4000)  # several chunks
+    with Recorder(path, None, {}, record_format=record_format) as recorder:
+        record(recorder, reads)
+    with open(path, "rb") as handle:
+        reader = make_reader(handle)
+        assert len(reader.get_summary().chunk_indexes) > 1
+        walked = [
+            (channel.message_encoding, message.data)
+            for _, channel, message in reader.iter_messages(
+                topics=["/fsp/events"], log_time_order=False
+            )
+        ]
+    _, events = read_recording(path)
+    indexed = list(events)
+    assert len(indexed) == len(walked) == len(reads) + 3  # connect, command, disconnect
+    for event, (encoding, data) in zip(indexed, walked):
+        if encoding == "cdr":
+            assert (event.kind, event.t, event.data, event.rc) == decode_event(data)
+        else:
+            assert (event.kind, event.t) == (json.loads(data)["kind"], json.loads(data)["t"])
+    assert [e.data for e in indexed if e.kind == "bytes"] == reads
+
+
+def test_json_format_still_replays(tmp_path: Path):
+    reads = flight(300)
+    metadata = {"port": "socket://sim:5762"}
+    with Recorder(tmp_path / "run.mcap", None, metadata, record_format="json") as recorder:
+        monitor, _ = record(recorder, reads)
+    assert replay_recording(tmp_path / "run.mcap").summary() == monitor.summary()
+
+
+# -- bad input ------------------------------------------------------------------------------
+
+
+def test_unwritable_or_taken_paths_fail_before_the_run(tmp_path: Path):
+    with pytest.raises(UsageError, match="cannot write the recording"):
+        Recorder(tmp_path / "missing-dir" / "run", None, {})
+    taken = tmp_path / "taken"
+    taken.mkdir()
+    (taken / "x").write_text("keep me")
+    with pytest.raises(UsageError, match="already exists"):
+        Recorder(taken, None, {})
+    assert (taken / "x").read_text() == "keep me"
+    (tmp_path / "run.mcap").write_text("keep me")
+    with pytest.raises(UsageError, match="already exists"):
+        Recorder(tmp_path / "run.mcap", None, {})
+    assert (tmp_path / "run.mcap").read_text() == "keep me"
+    (tmp_path / "dir.mcap").mkdir()
+    with pytest.raises(UsageError, match="is a directory"):
+        Recorder(tmp_path / "dir.mcap", None, {})
+    (tmp_path / "a-file").write_text("")
+    with pytest.raises(UsageError, match="cannot write the recording"):
+        Recorder(tmp_path / "a-file" / "run", None, {})
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    Recorder(empty, None, {}).close()  # an empty directory is fine, as for ros2 bag record
+    assert (empty / "metadata.yaml").exists()
+
+
+def _fill_disk_after(monkeypatch: pytest.MonkeyPatch, limit: int) -> None:
+    """The MCAP file's writes fail with ENOSPC past `limit` bytes, after a short write."""
+    original = mcapfile._TrackedFile.write
+
+    def write(self, data):
+        room = limit - self.position
+        if len(data) > room:
+            if room > 0:
+                original(self, bytes(data[:room]))
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return original(self, data)
+
+    monkeypatch.setattr(mcapfile._TrackedFile, "write", write)
+
+
+@pytest.mark.parametrize("record_format", ["ros2", "json"])
+def test_full_disk_ends_the_run_with_a_readable_file(tmp_path, monkeypatch, record_format):
+    reads = flight(6000)
+    path = tmp_path / ("run" if record_format == "ros2" else "run.mcap")
+    _fill_disk_after(monkeypatch, 400_000)
+    recorder = Recorder(path, None, {}, record_format=record_format)
+    with pytest.raises(RecordingError, match="finished and readable"):
+        record(recorder, reads)
+    recorder.close()
+    monkeypatch.undo()
+    mcap = path / "run_0.mcap" if record_format == "ros2" else path
+    assert 0 < mcap.stat().st_size <= 400_000 + 64
+    _, events = read_recording(path)
+    replayed = [e for e in events if e.kind == "bytes"]
+    assert replayed and [e.data for e in replayed] == reads[: len(replayed)]  # a clean prefix
+    if record_format == "ros2":
+        topics = read_bag(path)
+        frames = decoded_frames(reads)
+        imu = topics["/fsp/imu"]
+        assert 0 < len(imu) < len(frames)
+        with Reader(path) as reader:  # metadata.yaml counts what the file holds
+            counts = {c.topic: c.msgcount for c in reader.connections}
+        assert counts == {topic: len(messages) for topic, messages in topics.items()}
+
+
+@pytest.mark.skipif(shutil.which("unshare") is None, reason="needs unshare(1)")
+def test_full_tmpfs_ends_the_run_with_a_readable_bag(tmp_path: Path):
+    """A real full file system: a 2 MiB tmpfs in a private mount namespace."""
+    mount, out = tmp_path / "mnt", tmp_path / "out"
+    mount.mkdir()
+    out.mkdir()
+    script = textwrap.dedent(
+        f"""
+        import shutil, sys
+        from pathlib import Path
+        from tests.verify.test_rosbag import flight, record
+        from wftool.errors import RecordingError
+        from wftool.verify.recording import Recorder
+        recorder = Recorder(Path({str(mount)!r}) / "run", None, {{}})
+        try:
+            record(recorder, flight(40000))
+        except RecordingError as exc:
+            print("stopped:", exc)
+        recorder.close()
+        shutil.copytree(Path({str(mount)!r}) / "run", Path({str(out)!r}) / "run")
+        """
+    )
+    shell = f'mount -t tmpfs -o size=2m tmpfs "{mount}" && exec "{sys.executable}" -c "$0"'
+    result = subprocess.run(
+        ["unshare", "-rm", "sh", "-c", shell, script],
+        capture_output=True,
+        text=True,
+        cwd=Path(__file__).resolve().parents[2],
+        timeout=300,
+    )
+    if "mount:" in result.stderr or "unshare:" in result.stderr:
+        pytest.skip(f"cannot mount a private tmpfs here: {result.stderr.strip()}")
+    assert result.returncode == 0, result.stderr
+    assert "stopped: recording stopped, No space left on device" in result.stdout
+    bag = out / "run"
+    imu = read_bag(bag)["/fsp/imu"]
+    assert 1000 < len(imu) < 80000
+    with Reader(bag) as reader:
+        assert {c.topic: c.msgcount for c in reader.connections}["/fsp/imu"] == len(imu)
+    assert 0 <= replay_recording(bag).summary().frames - len(imu) <= 2 * PACKETS_PER_READ

@@ -1,0 +1,146 @@
+"""The live stream for Foxglove: a WebSocket server publishing ROS 2 messages as they decode.
+
+Built on the Foxglove SDK (`foxglove-sdk`, extra `wftool[foxglove]`). Its server runs in
+the SDK's own threads, outside the GIL, and `Channel.log` only queues the message: about
+0.3 µs here. Each client has a bounded queue (`backlog` messages); when a slow or stuck
+viewer lets it fill, its oldest messages are dropped, and a client whose control queue
+fills is disconnected. Publishing never waits for a viewer. Nothing is encoded for a
+topic nobody subscribed to. A server written on `websockets` would do that work (framing,
+per-client queues) in Python, under the GIL the decoder needs.
+
+The SDK speaks the Foxglove WebSocket protocol under its current subprotocol name,
+`foxglove.sdk.v1`: the Foxglove app and Lichtblick (since late 2025) connect; clients that
+only offer the old name, `foxglove.websocket.v1`, are refused at the handshake.
+
+Messages are the recording's (`wftool.verify.ros2`, CDR with `ros2msg` schemas) plus the
+attitude in degrees, for plotting.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any
+
+from wftool.errors import UsageError
+from wftool.extras import require
+from wftool.fsp import SensorFrame, StatePacket
+from wftool.verify import ros2
+from wftool.verify.ros2 import (
+    ATTITUDE_TOPIC,
+    BATTERY_TOPIC,
+    HEALTH_TOPIC,
+    IMU_TOPIC,
+    RC_TOPIC,
+    RPM_TOPIC,
+    FrameEncoder,
+    MessageType,
+    StreamHealth,
+    Throttle,
+)
+
+DEFAULT_PORT = 8765
+DEFAULT_HOST = "127.0.0.1"
+BACKLOG = 1024
+"""Messages queued per client before its oldest are dropped (the SDK's default)."""
+_PER_FRAME: tuple[tuple[str, MessageType, Callable[[SensorFrame, int], bytes]], ...] = (
+    (IMU_TOPIC, ros2.IMU, FrameEncoder.imu),
+    (ATTITUDE_TOPIC, ros2.ATTITUDE, FrameEncoder.attitude),
+    (RC_TOPIC, ros2.RC_CHANNELS, FrameEncoder.rc),
+    (RPM_TOPIC, ros2.MOTOR_RPM, FrameEncoder.rpm),
+)
+TOPICS: dict[str, MessageType] = {
+    **{topic: kind for topic, kind, _ in _PER_FRAME},
+    BATTERY_TOPIC: ros2.BATTERY_STATE,
+    HEALTH_TOPIC: ros2.STREAM_HEALTH,
+}
+
+
+class FoxgloveLive:
+    """A Foxglove WebSocket server on `host:port` (port 0: any free one); `close()` stops it."""
+
+    def __init__(
+        self,
+        port: int = DEFAULT_PORT,
+        host: str = DEFAULT_HOST,
+        *,
+        backlog: int = BACKLOG,
+        encoder: FrameEncoder | None = None,
+    ) -> None:
+        require("foxglove", what="the live Foxglove view")
+        import foxglove
+
+        self._encoder = encoder or FrameEncoder()
+        self._context = context = foxglove.Context()  # channels and server live as long as it
+        try:
+            self._server = foxglove.start_server(
+                name="wftool", host=host, port=port, context=context, message_backlog_size=backlog
+            )
+        except RuntimeError as exc:  # the SDK's FoxgloveError
+            reason = str(exc).removeprefix("FoxgloveError: ")
+            raise UsageError(f"cannot serve Foxglove on {host}:{port}: {reason}") from None
+        self.host = host
+        channels: dict[str, Any] = {
+            topic: foxglove.Channel(
+                topic,
+                schema=foxglove.Schema(name=kind.name, encoding="ros2msg", data=kind.schema_bytes),
+                message_encoding="cdr",
+                context=context,
+            )
+            for topic, kind in TOPICS.items()
+        }
+        self._per_frame = [(channels[topic], encode) for topic, _, encode in _PER_FRAME]
+        self._battery = channels[BATTERY_TOPIC]
+        self._health = channels[HEALTH_TOPIC]
+        self._channels = channels
+        self._battery_throttle = Throttle()
+        self._last_health: StreamHealth | None = None
+
+    @property
+    def port(self) -> int:
+        return self._server.port
+
+    @property
+    def url(self) -> str:
+        return f"ws://{self.host}:{self.port}"
+
+    def subscribed_topics(self) -> set[str]:
+        """The topics at least one viewer subscribed to."""
+        return {topic for topic, channel in self._channels.items() if channel.has_sinks()}
+
+    def publish(
+        self,
+        frame: SensorFrame,
+        health: StreamHealth | None = None,
+        arrival_time: float | None = None,
+    ) -> None:
+        """Queue `frame`'s messages (and `health`, if new) for the viewers; never blocks."""
+        stamp = self._encoder.frame_stamp_ns(frame, arrival_time)
+        for channel, encode in self._per_frame:
+            if channel.has_sinks():
+                channel.log(encode(frame, stamp), log_time=stamp)
+        if self._battery_throttle.due(stamp) and self._battery.has_sinks():
+            self._battery.log(self._encoder.battery(frame, stamp), log_time=stamp)
+        if health is not None and health is not self._last_health:
+            self._last_health = health
+            if self._health.has_sinks():
+                self._health.log(
+                    self._encoder.health(health), log_time=self._encoder.stamp_ns(health.t)
+                )
+
+    def packets(self, packets: Sequence[StatePacket], health: StreamHealth | None = None) -> None:
+        """`publish` every frame of `packets`: the call verify's live loop makes per read."""
+        for packet in packets:
+            for frame in packet.frames:
+                self.publish(frame, health, packet.arrival_time)
+
+    def close(self) -> None:
+        for channel in self._channels.values():
+            channel.close()
+        self._channels = {}
+        self._server.stop()
+
+    def __enter__(self) -> FoxgloveLive:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()

@@ -1,0 +1,401 @@
+"""ROS 2 messages of the FSP stream: `.msg` definitions and their CDR bytes.
+
+What the ROS 2 recording (`wftool.verify.rosbag`) and the live Foxglove view
+(`wftool.verify.foxglove`) publish, encoded once here:
+
+- `sensor_msgs/msg/Imu` per frame: `header.stamp` is the frame's capture time on the OBC
+  clock as Unix time (`SensorFrame.obc_time`; a frame decoded without arrival times falls
+  back to its packet's arrival, or to now). The estimate exists from the first packet on,
+  anchored at that packet's arrival; `StreamHealth.clock_locked` says when the estimator
+  has converged (its first update, 100 packets in). Orientation is the FSP quaternion as
+  sent (Q15, not renormalised; a level craft may show w = −1, the same rotation);
+  angular velocity in rad/s; linear acceleration in m/s² (g × 9.80665). Covariances
+  follow sensor_msgs and REP-145: all zeros = unknown; element 0 = −1 = no estimate at
+  all (no attitude in the frame, or no accelerometer calibration: acc_1g = 0).
+  `frame_id` is `fc`: Betaflight's body axes exactly as the FC reports them, not
+  converted to REP-103.
+- `sensor_msgs/msg/BatteryState`: voltage; the FC measures nothing else (NaN, per the
+  message's convention).
+- `wftool_msgs/msg/{RcChannels,MotorRpm,Attitude,StreamHealth,StreamEvent}`, our own
+  types, with their definitions below.
+
+Each schema is the message's definition followed by those of the types it uses, in the
+`ros2msg` form MCAP and the Foxglove WebSocket protocol expect.
+
+Why our own CDR encoder: every message here has a fixed layout, so one precompiled
+`struct` per type packs a message in about a microsecond. The generic serializers walk the
+definition per message: mcap-ros2-support took 25 µs per `Imu` on this machine, a
+quarter of the 1 kHz recording budget (5 % of a core = 50 µs per frame) for one topic.
+The tests prove the bytes with an independent reader (rosbags' CDR deserializer, driven by
+the definitions stored in the file) and against rosbags' own serializer.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from wftool.fsp import SensorFrame, StatePacket
+from wftool.verify.monitor import StreamMonitor, StreamSummary
+
+FRAME_ID = "fc"
+STANDARD_GRAVITY = 9.80665
+SLOW_PERIOD_NS = 100_000_000
+"""Battery state, and RC at the least: 10 Hz."""
+
+IMU_TOPIC = "/fsp/imu"
+RPM_TOPIC = "/fsp/rpm"
+RC_TOPIC = "/fsp/rc"
+ATTITUDE_TOPIC = "/fsp/attitude"
+BATTERY_TOPIC = "/fsp/battery"
+HEALTH_TOPIC = "/fsp/health"
+EVENT_TOPIC = "/fsp/events"
+CDR_LE = b"\x00\x01\x00\x00"
+"""The encapsulation header of little-endian plain CDR, as ROS 2 writes it."""
+
+_RULE = "=" * 80
+
+TIME_MSG = "int32 sec\nuint32 nanosec\n"
+HEADER_MSG = "builtin_interfaces/Time stamp\nstring frame_id\n"
+QUATERNION_MSG = "float64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1\n"
+VECTOR3_MSG = "float64 x\nfloat64 y\nfloat64 z\n"
+IMU_MSG = """\
+std_msgs/Header header
+geometry_msgs/Quaternion orientation
+float64[9] orientation_covariance
+geometry_msgs/Vector3 angular_velocity
+float64[9] angular_velocity_covariance
+geometry_msgs/Vector3 linear_acceleration
+float64[9] linear_acceleration_covariance
+"""
+BATTERY_STATE_MSG = """\
+uint8 POWER_SUPPLY_STATUS_UNKNOWN = 0
+uint8 POWER_SUPPLY_STATUS_CHARGING = 1
+uint8 POWER_SUPPLY_STATUS_DISCHARGING = 2
+uint8 POWER_SUPPLY_STATUS_NOT_CHARGING = 3
+uint8 POWER_SUPPLY_STATUS_FULL = 4
+uint8 POWER_SUPPLY_HEALTH_UNKNOWN = 0
+uint8 POWER_SUPPLY_HEALTH_GOOD = 1
+uint8 POWER_SUPPLY_HEALTH_OVERHEAT = 2
+uint8 POWER_SUPPLY_HEALTH_DEAD = 3
+uint8 POWER_SUPPLY_HEALTH_OVERVOLTAGE = 4
+uint8 POWER_SUPPLY_HEALTH_UNSPEC_FAILURE = 5
+uint8 POWER_SUPPLY_HEALTH_COLD = 6
+uint8 POWER_SUPPLY_HEALTH_WATCHDOG_TIMER_EXPIRE = 7
+uint8 POWER_SUPPLY_HEALTH_SAFETY_TIMER_EXPIRE = 8
+uint8 POWER_SUPPLY_TECHNOLOGY_UNKNOWN = 0
+uint8 POWER_SUPPLY_TECHNOLOGY_NIMH = 1
+uint8 POWER_SUPPLY_TECHNOLOGY_LION = 2
+uint8 POWER_SUPPLY_TECHNOLOGY_LIPO = 3
+uint8 POWER_SUPPLY_TECHNOLOGY_LIFE = 4
+uint8 POWER_SUPPLY_TECHNOLOGY_NICD = 5
+uint8 POWER_SUPPLY_TECHNOLOGY_LIMN = 6
+std_msgs/Header header
+float32 voltage
+float32 temperature
+float32 current
+float32 charge
+float32 capacity
+float32 design_capacity
+float32 percentage
+uint8 power_supply_status
+uint8 power_supply_health
+uint8 power_supply_technology
+bool present
+float32[] cell_voltage
+float32[] cell_temperature
+string location
+string serial_number
+"""
+RC_CHANNELS_MSG = """\
+# The RC values the FC is using (µs-style, 1000-2000), as FSP streams them.
+std_msgs/Header header
+int16 roll
+int16 pitch
+int16 yaw
+int16 throttle
+int16 aux3
+int16 aux4
+"""
+MOTOR_RPM_MSG = """\
+# Motor speed, mechanical RPM from bidirectional DShot, motors 1-4.
+std_msgs/Header header
+uint16[4] rpm
+"""
+ATTITUDE_MSG = """\
+# Attitude from the FC's quaternion in Betaflight's convention, degrees (yaw 0-360).
+std_msgs/Header header
+float64 roll_deg
+float64 pitch_deg
+float64 yaw_deg
+"""
+STREAM_HEALTH_MSG = """\
+# The FSP stream as wftool sees it; counters are totals of the run so far.
+std_msgs/Header header
+uint32 seq
+uint32 epoch
+bool e1
+bool clock_locked
+bool connected
+uint64 packets
+uint64 frames
+uint64 lost_frames
+uint64 lost_packets
+uint64 fc_drops
+uint64 rejected_chunks
+uint32 resets
+uint32 reconnects
+"""
+STREAM_EVENT_MSG = """\
+# What the verify loop saw, exactly: `wftool replay` feeds these back.
+uint8 CONNECTED = 0
+uint8 DISCONNECTED = 1
+uint8 BYTES = 2
+uint8 COMMAND = 3
+float64 t
+uint8 kind
+uint8[] data
+int16[] rc
+"""
+
+
+@dataclass(frozen=True)
+class MessageType:
+    name: str
+    """ROS 2 type name, e.g. `sensor_msgs/msg/Imu`."""
+    schema: str
+    """The `ros2msg` schema: the definition, then each type it uses."""
+
+    @property
+    def schema_bytes(self) -> bytes:
+        return self.schema.encode()
+
+
+def _message_type(name: str, definition: str, *uses: tuple[str, str]) -> MessageType:
+    parts = [definition]
+    for used_name, used_definition in uses:
+        parts.append(f"{_RULE}\nMSG: {used_name}\n{used_definition}")
+    return MessageType(name, "".join(parts))
+
+
+_HEADER_USES = (("std_msgs/Header", HEADER_MSG), ("builtin_interfaces/Time", TIME_MSG))
+IMU = _message_type(
+    "sensor_msgs/msg/Imu",
+    IMU_MSG,
+    *_HEADER_USES,
+    ("geometry_msgs/Quaternion", QUATERNION_MSG),
+    ("geometry_msgs/Vector3", VECTOR3_MSG),
+)
+BATTERY_STATE = _message_type("sensor_msgs/msg/BatteryState", BATTERY_STATE_MSG, *_HEADER_USES)
+RC_CHANNELS = _message_type("wftool_msgs/msg/RcChannels", RC_CHANNELS_MSG, *_HEADER_USES)
+MOTOR_RPM = _message_type("wftool_msgs/msg/MotorRpm", MOTOR_RPM_MSG, *_HEADER_USES)
+ATTITUDE = _message_type("wftool_msgs/msg/Attitude", ATTITUDE_MSG, *_HEADER_USES)
+STREAM_HEALTH = _message_type("wftool_msgs/msg/StreamHealth", STREAM_HEALTH_MSG, *_HEADER_USES)
+STREAM_EVENT = _message_type("wftool_msgs/msg/StreamEvent", STREAM_EVENT_MSG)
+
+EVENT_KINDS = ("connected", "disconnected", "bytes", "command")
+"""`StreamEvent.kind` values in order (CONNECTED = 0, ...)."""
+
+
+class Throttle:
+    """Lets a stamp through at most once per `period_ns` (and again when stamps go back)."""
+
+    def __init__(self, period_ns: int = SLOW_PERIOD_NS) -> None:
+        self.period_ns = period_ns
+        self.last_ns: int | None = None
+
+    def due(self, stamp_ns: int) -> bool:
+        last = self.last_ns
+        if last is not None and 0 <= stamp_ns - last < self.period_ns:
+            return False
+        self.last_ns = stamp_ns
+        return True
+
+
+@dataclass(frozen=True)
+class StreamHealth:
+    """A snapshot of the stream's counters: what `/fsp/health` carries."""
+
+    t: float
+    """OBC monotonic time of the snapshot, s."""
+    seq: int
+    epoch: int
+    e1: bool
+    clock_locked: bool
+    connected: bool
+    packets: int
+    frames: int
+    lost_frames: int
+    lost_packets: int
+    fc_drops: int
+    rejected_chunks: int
+    resets: int
+    reconnects: int
+
+    @classmethod
+    def of(cls, summary: StreamSummary, latest: StatePacket | None, t: float) -> StreamHealth:
+        """The counters of `summary` (taken at `t`), with the latest packet's seq and epoch."""
+        return cls(
+            t=t,
+            seq=latest.seq if latest is not None else 0,
+            epoch=latest.epoch if latest is not None else 0,
+            e1=bool(summary.e1),
+            clock_locked=summary.clock is not None and summary.clock.locked,
+            connected=summary.connected,
+            packets=summary.packets,
+            frames=summary.frames,
+            lost_frames=summary.lost_frames,
+            lost_packets=summary.lost_packets,
+            fc_drops=summary.fc_drops,
+            rejected_chunks=summary.errors,
+            resets=summary.resets,
+            reconnects=summary.reconnects,
+        )
+
+
+class HealthSampler:
+    """The run's `StreamHealth`, taken from the monitor at most every `period_s`.
+
+    What verify passes to the recorder and the live view with each read: the same object
+    until a new snapshot is due, so they write or publish each snapshot once.
+    """
+
+    def __init__(self, monitor: StreamMonitor, period_s: float = SLOW_PERIOD_NS / 1e9) -> None:
+        self._monitor = monitor
+        self._period_s = period_s
+        self.latest: StreamHealth | None = None
+
+    def sample(self, packets: Sequence[StatePacket], t: float) -> StreamHealth | None:
+        """The latest snapshot; a new one if `packets` arrived and the period is up."""
+        latest = self.latest
+        if packets and (latest is None or not 0 <= t - latest.t < self._period_s):
+            self.latest = latest = StreamHealth.of(self._monitor.summary(t), packets[-1], t)
+        return latest
+
+
+# Offsets below count from the end of the 4-byte encapsulation header, as CDR alignment does.
+# A header with a 2-character frame_id ends at 15: 4 sec + 4 nanosec + 4 length + "fc\0".
+_HEADER = "iII3s"
+_IMU = struct.Struct("<4s" + _HEADER + "x37d")
+_BATTERY = struct.Struct("<4s" + _HEADER + "x7f3B?IIIs3xIs")
+_RC = struct.Struct("<4s" + _HEADER + "x6h")
+_RPM = struct.Struct("<4s" + _HEADER + "x4H")
+_ATTITUDE = struct.Struct("<4s" + _HEADER + "x3d")
+_HEALTH = struct.Struct("<4s" + _HEADER + "x2I3?5x6Q2I")
+_EVENT_HEAD = struct.Struct("<4sdB3xI")
+_COUNT = struct.Struct("<I")
+_FRAME_ID = FRAME_ID.encode() + b"\0"
+assert len(_FRAME_ID) == 3, "the struct layouts above assume a 2-character frame_id"
+
+_ZEROS9 = (0.0,) * 9
+_NO_ESTIMATE9 = (-1.0,) + (0.0,) * 8
+_DEG = math.pi / 180.0
+_NAN = math.nan
+_BATTERY_UNMEASURED = (_NAN,) * 6
+_EMPTY = b"\0"  # an empty CDR string's content
+
+
+class FrameEncoder:
+    """CDR bytes of one frame's messages, stamped in Unix time.
+
+    `wall_offset_ns` maps the OBC monotonic clock (what the decoder's times are on) to
+    Unix time; by default it is taken now, once, so a run's stamps keep their spacing.
+    """
+
+    def __init__(self, wall_offset_ns: int | None = None) -> None:
+        if wall_offset_ns is None:
+            wall_offset_ns = time.time_ns() - time.monotonic_ns()
+        self.wall_offset_ns = wall_offset_ns
+
+    def stamp_ns(self, t: float) -> int:
+        """Unix time (ns) of OBC monotonic time `t` (s)."""
+        return self.wall_offset_ns + int(t * 1e9)
+
+    def frame_stamp_ns(self, frame: SensorFrame, fallback: float | None) -> int:
+        """The frame's capture time; else `fallback` (its arrival); else now."""
+        t = frame.obc_time
+        if t is None:
+            if fallback is None:
+                return time.time_ns()
+            t = fallback
+        return self.wall_offset_ns + int(t * 1e9)
+
+    @staticmethod
+    def imu(frame: SensorFrame, stamp_ns: int) -> bytes:
+        v = frame.values
+        sec, nsec = divmod(stamp_ns, 1_000_000_000)
+        w, x, y, z = v[9], v[10], v[11], v[12]
+        orientation_cov = _ZEROS9 if w or x or y or z else _NO_ESTIMATE9
+        one_g = v[4]
+        if one_g:
+            scale = STANDARD_GRAVITY / one_g
+            ax, ay, az = v[1] * scale, v[2] * scale, v[3] * scale
+            acc_cov = _ZEROS9
+        else:
+            ax = ay = az = 0.0
+            acc_cov = _NO_ESTIMATE9
+        rad = v[5] * _DEG
+        return _IMU.pack(
+            CDR_LE, sec, nsec, 3, _FRAME_ID,
+            x / 32768.0, y / 32768.0, z / 32768.0, w / 32768.0, *orientation_cov,
+            v[6] * rad, v[7] * rad, v[8] * rad, *_ZEROS9,
+            ax, ay, az, *acc_cov,
+        )  # fmt: skip
+
+    @staticmethod
+    def rc(frame: SensorFrame, stamp_ns: int) -> bytes:
+        sec, nsec = divmod(stamp_ns, 1_000_000_000)
+        return _RC.pack(CDR_LE, sec, nsec, 3, _FRAME_ID, *frame.values[13:19])
+
+    @staticmethod
+    def rpm(frame: SensorFrame, stamp_ns: int) -> bytes:
+        sec, nsec = divmod(stamp_ns, 1_000_000_000)
+        return _RPM.pack(CDR_LE, sec, nsec, 3, _FRAME_ID, *frame.values[19:23])
+
+    @staticmethod
+    def attitude(frame: SensorFrame, stamp_ns: int) -> bytes:
+        sec, nsec = divmod(stamp_ns, 1_000_000_000)
+        return _ATTITUDE.pack(CDR_LE, sec, nsec, 3, _FRAME_ID, *frame.euler_deg)
+
+    @staticmethod
+    def battery(frame: SensorFrame, stamp_ns: int) -> bytes:
+        sec, nsec = divmod(stamp_ns, 1_000_000_000)
+        return _BATTERY.pack(
+            CDR_LE, sec, nsec, 3, _FRAME_ID,
+            frame.values[23] / 100.0, *_BATTERY_UNMEASURED,
+            0, 0, 0, True,  # status, health, technology unknown; present
+            0, 0,  # no cell voltages or temperatures
+            1, _EMPTY, 1, _EMPTY,  # location, serial number
+        )  # fmt: skip
+
+    def health(self, health: StreamHealth) -> bytes:
+        sec, nsec = divmod(self.stamp_ns(health.t), 1_000_000_000)
+        return _HEALTH.pack(
+            CDR_LE, sec, nsec, 3, _FRAME_ID,
+            health.seq, health.epoch, health.e1, health.clock_locked, health.connected,
+            health.packets, health.frames, health.lost_frames, health.lost_packets,
+            health.fc_drops, health.rejected_chunks, health.resets, health.reconnects,
+        )  # fmt: skip
+
+
+def encode_event(kind: str, t: float, data: bytes = b"", rc: Sequence[int] = ()) -> bytes:
+    """A `StreamEvent` message."""
+    head = _EVENT_HEAD.pack(CDR_LE, t, EVENT_KINDS.index(kind), len(data))
+    padding = b"\0" * (-len(data) % 4)  # the rc sequence's length is 4-aligned
+    return b"".join((head, data, padding, _COUNT.pack(len(rc)), struct.pack(f"<{len(rc)}h", *rc)))
+
+
+def decode_event(message: bytes) -> tuple[str, float, bytes, tuple[int, ...]]:
+    """(kind, t, data, rc) of a `StreamEvent` message, as `encode_event` took them."""
+    encapsulation, t, kind, size = _EVENT_HEAD.unpack_from(message)
+    if encapsulation != CDR_LE:
+        raise ValueError(f"not little-endian CDR: {encapsulation.hex()}")
+    start = _EVENT_HEAD.size
+    data = message[start : start + size]
+    rc_at = start + size + (-size % 4)
+    (count,) = _COUNT.unpack_from(message, rc_at)
+    rc = struct.unpack_from(f"<{count}h", message, rc_at + 4)
+    return EVENT_KINDS[kind], t, data, rc

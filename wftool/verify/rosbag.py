@@ -1,0 +1,265 @@
+"""ROS 2 recordings: a rosbag2 directory with one MCAP file (`ros2` profile, CDR messages).
+
+`ros2 bag play DIR`, `ros2 bag info DIR`, rosbags, Foxglove and PlotJuggler open it as it
+is: `DIR/metadata.yaml` (rosbag2 metadata version 8, what rosbag2 writes since Jazzy and
+reads back to Humble) next to `DIR/DIR_0.mcap`, named the way `ros2 bag record -o DIR`
+names it. A path ending in `.mcap` gets that MCAP file alone, without the directory: the
+same messages, which rosbag2 and rosbags open as a bag of one file and Foxglove opens as
+any MCAP file. Topics:
+
+| topic | type | rate |
+|---|---|---|
+| `/fsp/imu` | `sensor_msgs/msg/Imu` | every frame |
+| `/fsp/rpm` | `wftool_msgs/msg/MotorRpm` | every frame |
+| `/fsp/rc` | `wftool_msgs/msg/RcChannels` | on change, at least 10 Hz (1) |
+| `/fsp/battery` | `sensor_msgs/msg/BatteryState` | 10 Hz |
+| `/fsp/health` | `wftool_msgs/msg/StreamHealth` | each snapshot the caller passes (verify: 10 Hz) |
+| `/fsp/events` | `wftool_msgs/msg/StreamEvent` | every read, connect, disconnect and command |
+
+(1) A change is written with the frame before it, so a plot steps rather than ramps.
+
+`/fsp/events` holds the raw bytes exactly as read, so `wftool replay` reproduces the run.
+Message definitions: `wftool.verify.ros2`. A message's log time is when the OBC read it
+(rosbag2's receive time: `ros2 bag play` paces by it); `header.stamp` is when the FC
+captured it. `ros2 bag play` publishes the standard types anywhere; the `wftool_msgs`
+topics need that package built on the ROS side, and are skipped with a warning otherwise.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+from wftool import __version__
+from wftool.errors import RecordingError, UsageError
+from wftool.fsp import SensorFrame, StatePacket
+from wftool.verify import ros2
+from wftool.verify.mcapfile import McapFile
+from wftool.verify.ros2 import (
+    BATTERY_TOPIC,
+    EVENT_TOPIC,
+    HEALTH_TOPIC,
+    IMU_TOPIC,
+    RC_TOPIC,
+    RPM_TOPIC,
+    SLOW_PERIOD_NS,
+    FrameEncoder,
+    MessageType,
+    StreamHealth,
+    Throttle,
+)
+
+TOPICS: dict[str, MessageType] = {
+    IMU_TOPIC: ros2.IMU,
+    RPM_TOPIC: ros2.MOTOR_RPM,
+    RC_TOPIC: ros2.RC_CHANNELS,
+    BATTERY_TOPIC: ros2.BATTERY_STATE,
+    HEALTH_TOPIC: ros2.STREAM_HEALTH,
+    EVENT_TOPIC: ros2.STREAM_EVENT,
+}
+METADATA_VERSION = 8
+
+
+def bag_file(path: Path) -> Path:
+    """The MCAP file of a recording: `path` itself, or the one in a rosbag2 directory."""
+    if not path.is_dir():
+        return path
+    files = sorted(path.glob("*.mcap"))
+    if len(files) != 1:
+        found = ", ".join(f.name for f in files) or "none"
+        raise UsageError(f"{path} is no wftool recording: expected one .mcap file, found {found}")
+    return files[0]
+
+
+class RosbagWriter:
+    """Writes a run to the rosbag2 directory `path` (which must not exist, or be empty), or,
+    for a `path` ending in `.mcap`, to that one MCAP file (which must not exist)."""
+
+    def __init__(self, path: Path, metadata_name: str, metadata: dict[str, str]) -> None:
+        if path.exists() and not (path.is_dir() and not any(path.iterdir())):
+            raise UsageError(f"cannot write the recording: {path} already exists")
+        if path.suffix == ".mcap":
+            if path.is_dir():
+                raise UsageError(f"cannot write the recording: {path} is a directory")
+            self.directory, self.mcap_path = None, path
+            self.metadata_path: Path | None = None
+        else:
+            self.directory, self.mcap_path = path, path / f"{path.name}_0.mcap"
+            self.metadata_path = path / "metadata.yaml"
+        self._encoder = FrameEncoder()
+        self._custom = {
+            **metadata,
+            "wftool": __version__,
+            "wall_offset_ns": str(self._encoder.wall_offset_ns),  # Unix minus OBC monotonic time
+        }
+        created = self.directory is not None and not self.directory.exists()
+        try:
+            if self.directory is not None:
+                self.directory.mkdir(exist_ok=True)
+        except OSError as exc:
+            raise UsageError(f"cannot write the recording: {exc}") from None
+        self._out: McapFile | None = None
+        try:
+            self._out = McapFile(self.mcap_path, "ros2", f"wftool {__version__}", replace=False)
+            self._channels = {
+                topic: self._out.register_channel(
+                    topic, "cdr", self._out.register_schema(kind.name, "ros2msg", kind.schema_bytes)
+                )
+                for topic, kind in TOPICS.items()
+            }
+            self._out.add_metadata(metadata_name, self._custom)
+            self._write_metadata()  # now, so an unwritable directory shows before the run
+        except (OSError, UsageError) as exc:
+            self._remove(created)
+            if isinstance(exc, UsageError):
+                raise
+            raise UsageError(f"cannot write the recording: {exc}") from None
+        ids = self._channels
+        self._imu, self._rpm, self._rc = ids[IMU_TOPIC], ids[RPM_TOPIC], ids[RC_TOPIC]
+        self._battery, self._health = ids[BATTERY_TOPIC], ids[HEALTH_TOPIC]
+        self._events = ids[EVENT_TOPIC]
+        self._battery_throttle = Throttle()
+        self._rc_sent: tuple | None = None  # values of the last RC message
+        self._rc_sent_ns = 0  # its stamp
+        self._rc_previous: tuple = ()  # (frame, stamp) of the latest frame seen
+        self._last_health: StreamHealth | None = None
+        self._log_ns = 0
+
+    @property
+    def wall_offset_ns(self) -> int:
+        """Unix time minus OBC monotonic time, ns: how the stamps were made."""
+        return self._encoder.wall_offset_ns
+
+    def event(self, kind: str, t: float, data: bytes = b"", rc: Sequence[int] = ()) -> None:
+        """One `/fsp/events` message: a connect, disconnect, read or command at `t`."""
+        self._log_ns = log_ns = self._encoder.stamp_ns(t)
+        self._out.add_message(self._events, log_ns, ros2.encode_event(kind, t, data, rc))
+
+    def packets(self, packets: Sequence[StatePacket], health: StreamHealth | None = None) -> None:
+        """The frames of `packets`, and `health` if it is a new snapshot."""
+        add, encoder = self._out.add_message, self._encoder
+        imu_id, rpm_id = self._imu, self._rpm
+        imu, rpm = encoder.imu, encoder.rpm
+        log_ns = self._log_ns
+        for packet in packets:
+            arrival = packet.arrival_time
+            log_ns = encoder.stamp_ns(arrival) if arrival is not None else time.time_ns()
+            for frame in packet.frames:
+                stamp = encoder.frame_stamp_ns(frame, arrival)
+                add(imu_id, log_ns, imu(frame, stamp))
+                add(rpm_id, log_ns, rpm(frame, stamp))
+                rc = frame.values[13:19]
+                if rc != self._rc_sent or not 0 <= stamp - self._rc_sent_ns < SLOW_PERIOD_NS:
+                    self._rc_message(frame, stamp, log_ns, rc)
+                self._rc_previous = (frame, stamp)
+                if self._battery_throttle.due(stamp):
+                    add(self._battery, log_ns, encoder.battery(frame, stamp))
+        self._log_ns = log_ns
+        if health is not None and health is not self._last_health:
+            self._last_health = health
+            add(self._health, log_ns, encoder.health(health))
+
+    def _rc_message(self, frame: SensorFrame, stamp: int, log_ns: int, rc: tuple) -> None:
+        add, encode = self._out.add_message, self._encoder.rc
+        if rc != self._rc_sent and self._rc_previous:
+            previous, previous_stamp = self._rc_previous
+            if previous_stamp != self._rc_sent_ns:  # the old value's last frame: a step
+                add(self._rc, log_ns, encode(previous, previous_stamp))
+        add(self._rc, log_ns, encode(frame, stamp))
+        self._rc_sent, self._rc_sent_ns = rc, stamp
+
+    def close(self) -> None:
+        """Finish the MCAP file and write the final metadata (also after a failure)."""
+        if self._out is None:
+            return
+        out, self._out = self._out, None
+        try:
+            out.finish()
+        finally:
+            self._finish_metadata(out)
+
+    def _finish_metadata(self, out: McapFile) -> None:
+        if self.metadata_path is None:
+            return
+        try:
+            self._write_metadata(out)
+        except OSError as exc:
+            self.metadata_path.with_suffix(".yaml.tmp").unlink(missing_ok=True)
+            if out.failure is None:
+                raise RecordingError(
+                    f"cannot update {self.metadata_path} ({exc.strerror or exc}): it still "
+                    f"lists no messages; {self.mcap_path.name} is complete"
+                ) from None
+            # The recording already failed and said so; the metadata of the start stays.
+
+    def _write_metadata(self, out: McapFile | None = None) -> None:
+        if self.metadata_path is None:  # one MCAP file: its own summary says it all
+            return
+        counts = {topic: 0 for topic in TOPICS}
+        start = duration = 0
+        if out is not None:
+            by_id = {channel: topic for topic, channel in self._channels.items()}
+            for channel, count in out.message_counts.items():
+                counts[by_id[channel]] = count
+            if out.time_range is not None:
+                start, duration = out.time_range[0], out.time_range[1] - out.time_range[0]
+        text = _metadata_yaml(self.mcap_path.name, counts, start, duration, self._custom)
+        temporary = self.metadata_path.with_suffix(".yaml.tmp")
+        temporary.write_text(text)
+        os.replace(temporary, self.metadata_path)
+
+    def _remove(self, created: bool) -> None:
+        if self._out is not None:
+            self._out.discard()
+        if self.metadata_path is not None:
+            for path in (self.metadata_path, self.metadata_path.with_suffix(".yaml.tmp")):
+                path.unlink(missing_ok=True)
+        if created:
+            self.directory.rmdir()
+
+
+def _quoted(value: str) -> str:
+    return json.dumps(value)  # a JSON string is a YAML double-quoted scalar
+
+
+def _metadata_yaml(
+    file_name: str, counts: dict[str, int], start_ns: int, duration_ns: int, custom: dict
+) -> str:
+    """rosbag2's metadata.yaml (version 8): the fields every reader back to Humble needs."""
+    total = sum(counts.values())
+    lines = [
+        "rosbag2_bagfile_information:",
+        f"  version: {METADATA_VERSION}",
+        "  storage_identifier: mcap",
+        f"  duration:\n    nanoseconds: {duration_ns}",
+        f"  starting_time:\n    nanoseconds_since_epoch: {start_ns}",
+        f"  message_count: {total}",
+        "  topics_with_message_count:",
+    ]
+    for topic, kind in TOPICS.items():
+        lines += [
+            "    - topic_metadata:",
+            f"        name: {_quoted(topic)}",
+            f"        type: {_quoted(kind.name)}",
+            "        serialization_format: cdr",
+            '        offered_qos_profiles: ""',
+            '        type_description_hash: ""',
+            f"      message_count: {counts[topic]}",
+        ]
+    lines += [
+        '  compression_format: ""',
+        '  compression_mode: ""',
+        f"  relative_file_paths:\n    - {_quoted(file_name)}",
+        "  files:",
+        f"    - path: {_quoted(file_name)}",
+        f"      starting_time:\n        nanoseconds_since_epoch: {start_ns}",
+        f"      duration:\n        nanoseconds: {duration_ns}",
+        f"      message_count: {total}",
+        "  custom_data:",
+        *(f"    {_quoted(key)}: {_quoted(str(value))}" for key, value in custom.items()),
+        '  ros_distro: ""',
+    ]
+    return "\n".join(lines) + "\n"
