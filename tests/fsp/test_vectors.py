@@ -11,8 +11,14 @@ import pytest
 
 from wftool.fsp import CommandDecoder, CommandPacket, SensorFrame, StateDecoder, StatePacket
 from wftool.fsp.crc import crc8
-from wftool.fsp.encoder import encode_command, encode_state
-from wftool.fsp.framing import Rejection
+from wftool.fsp.encoder import encode_command, encode_state, encode_time_reply
+from wftool.fsp.framing import STATE_E2_VERSIONS, Deframer, Rejection
+from wftool.fsp.packets import (
+    TIME_REPLY_LENGTH,
+    TimeReply,
+    parse_state,
+    parse_time_reply,
+)
 
 STATE_VECTORS = ["state_base", "state_e1_wrap", "state_mavlink"]
 FRAME_FIELDS = ["sample_time_us", "acc", "acc_1g", "gyro_scale", "gyro", "attitude", "rc", "rpm"]
@@ -110,3 +116,62 @@ def test_e1_wrap_vector_accounting(vectors_dir: Path) -> None:
     stats = decoder.stats
     assert (stats.lost_packets, stats.lost_frames, stats.fc_drops) == (0, 0, 3)
     assert (stats.wraps, stats.resets) == (1, 0)
+
+
+# -- E2 time replies: vectors written by the firmware's own C encoder (spec §10) --------------
+
+REPLY_FIELDS = ("command_seq", "command_tx_time_us", "rx_time_us", "tx_time_us")
+
+
+def reply_as_json(reply: TimeReply) -> dict[str, Any]:
+    return {"type": "time_reply", "version": reply.version} | {
+        name: getattr(reply, name) for name in REPLY_FIELDS
+    }
+
+
+def decode_e2(wire: bytes) -> list[dict[str, Any]]:
+    """Every packet of an E2 stream in order, as the vectors' JSON."""
+    deframer = Deframer(STATE_E2_VERSIONS)
+    decoded = [
+        reply_as_json(parse_time_reply(payload))
+        if len(payload) == TIME_REPLY_LENGTH
+        else {"type": "state"} | packet_as_json(parse_state(payload))
+        for payload in deframer.feed(wire)
+    ]
+    assert not any(deframer.rejected.values()), deframer.rejected
+    return decoded
+
+
+def encode_e2(packets: list[dict[str, Any]]) -> bytes:
+    return b"".join(
+        encode_time_reply(TimeReply(*(p[name] for name in REPLY_FIELDS)))
+        if p["type"] == "time_reply"
+        else encode_state(packet_from_json({k: v for k, v in p.items() if k != "type"}))
+        for p in packets
+    )
+
+
+@pytest.mark.parametrize("name", ["time_reply", "time_reply_stream"])
+def test_time_reply_vector_decodes_exactly(vectors_dir: Path, name: str) -> None:
+    wire, expected = load(vectors_dir, name)
+    assert decode_e2(wire) == expected["packets"]
+
+
+@pytest.mark.parametrize("name", ["time_reply", "time_reply_stream"])
+def test_time_reply_vector_encodes_byte_for_byte(vectors_dir: Path, name: str) -> None:
+    wire, expected = load(vectors_dir, name)
+    assert encode_e2(expected["packets"]) == wire
+
+
+def test_plain_v5_decoder_rejects_each_time_reply_as_one_chunk(vectors_dir: Path) -> None:
+    """A decoder without E2 yields every state packet, counts one chunk per reply, loses nothing."""
+    wire, expected = load(vectors_dir, "time_reply_stream")
+    decoder = StateDecoder()
+    packets = decoder.feed(wire)
+    states = [{k: v for k, v in p.items() if k != "type"} for p in expected["packets"]]
+    assert [packet_as_json(p) for p in packets] == [s for s in states if "frames" in s]
+    plain = expected["plain_v5"]
+    assert len(packets) == plain["state_packets"]
+    assert decoder.stats.errors == decoder.stats.rejected[Rejection.LENGTH]
+    assert decoder.stats.errors == plain["rejected_chunks"]
+    assert (decoder.stats.lost_packets, decoder.stats.lost_frames) == (0, 0)

@@ -1,4 +1,5 @@
-"""Encoding FSP packets for the wire: the OBC's command uplink, and state streams for tests.
+"""Encoding FSP packets for the wire: the OBC's command uplink; state streams and time
+replies for tests.
 
 `CommandSender` is what an OBC program uses: it numbers commands (E1 `seq`) and stamps
 them with the OBC clock, so the FC side and logs can tell loss and latency.
@@ -10,7 +11,14 @@ import time
 from collections.abc import Callable, Sequence
 
 from wftool.fsp.framing import encode_frame
-from wftool.fsp.packets import CommandPacket, StatePacket, pack_command, pack_state
+from wftool.fsp.packets import (
+    CommandPacket,
+    StatePacket,
+    TimeReply,
+    pack_command,
+    pack_state,
+    pack_time_reply,
+)
 
 U32_MASK = 0xFFFF_FFFF
 
@@ -18,6 +26,11 @@ U32_MASK = 0xFFFF_FFFF
 def encode_state(packet: StatePacket) -> bytes:
     """Wire bytes of a state packet (COBS + delimiter)."""
     return encode_frame(pack_state(packet))
+
+
+def encode_time_reply(reply: TimeReply) -> bytes:
+    """Wire bytes of a time reply (COBS + delimiter): what an FC with E2 sends, for tests."""
+    return encode_frame(pack_time_reply(reply))
 
 
 def encode_command(packet: CommandPacket) -> bytes:

@@ -1,4 +1,4 @@
-"""FSP v5 packet models and their byte layouts (spec §3–§6), without the COBS framing.
+"""FSP v5 packet models and their byte layouts (spec §3–§6, §10), without the COBS framing.
 
 The models hold raw wire values, so decode → encode is exact; properties convert to physical
 units. Times the decoder derives (unwrapped, OBC-corrected) are left out of equality: two
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 import struct
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from wftool.fsp.crc import crc8
 
@@ -21,6 +21,7 @@ VERSION_TUNNEL = VERSION | TUNNEL_FLAG
 STATE_LENGTH = 116
 STATE_TUNNEL_LENGTH = 180
 COMMAND_LENGTH = 24
+TIME_REPLY_LENGTH = 20
 MAVLINK_FIELD_LENGTH = 64
 
 E1_FLAG = 1 << 23
@@ -64,9 +65,11 @@ _FRAME = struct.Struct("<" + _FRAME_FORMAT)
 _TRAILER = struct.Struct("<" + _TRAILER_FORMAT)
 _new = object.__new__
 _COMMAND = struct.Struct("<BBHI6h3xB")
+_TIME_REPLY = struct.Struct("<BBHIII3xB")
 assert _STATE_BASE.size == STATE_LENGTH
 assert _STATE_TUNNEL.size == STATE_TUNNEL_LENGTH
 assert _COMMAND.size == COMMAND_LENGTH
+assert _TIME_REPLY.size == TIME_REPLY_LENGTH
 
 Q15 = 32768.0
 RC_CHANNELS = ("roll", "pitch", "yaw", "throttle", "aux3", "aux4")
@@ -234,6 +237,33 @@ class CommandPacket:
     tx_time_us: int = 0
 
 
+@dataclass(slots=True)
+class TimeReply:
+    """FC → OBC time reply (spec §10, E2): which command it answers, and when, by the FC clock.
+
+    Equality is the wire content; the decoder adds the unwrapped FC times and the arrival.
+    """
+
+    command_seq: int
+    """`seq` of the command answered (24 bits)."""
+    command_tx_time_us: int
+    """That command's `tx_time_us` (OBC clock, u32), echoed."""
+    rx_time_us: int
+    """FC `micros()` (u32) when the FC took the command."""
+    tx_time_us: int
+    """FC `micros()` (u32) when the reply was written to the port."""
+    received_us: int | None = field(default=None, compare=False)
+    """`rx_time_us` unwrapped into the state stream's 64-bit FC time (set by the decoder)."""
+    sent_us: int | None = field(default=None, compare=False)
+    """`tx_time_us` unwrapped likewise."""
+    arrival_time: float | None = field(default=None, compare=False)
+    """OBC clock (s) when the bytes carrying the reply were read."""
+
+    @property
+    def version(self) -> int:
+        return VERSION
+
+
 def parse_state(payload: bytes) -> StatePacket:
     """A validated 116- or 180-byte state payload (see `framing.Deframer`) as a packet.
 
@@ -288,6 +318,25 @@ def parse_command(payload: bytes) -> CommandPacket:
     """A validated 24-byte command payload as a packet."""
     v = _COMMAND.unpack(payload)
     return CommandPacket(v[4:10], v[1] | v[2] << 8, v[3])
+
+
+def parse_time_reply(payload: bytes) -> TimeReply:
+    """A validated 20-byte time reply payload as a packet."""
+    _, seq_low, seq_high, command_tx, rx, tx, _ = _TIME_REPLY.unpack(payload)
+    return TimeReply(seq_low | seq_high << 8, command_tx, rx, tx)
+
+
+def pack_time_reply(reply: TimeReply) -> bytes:
+    """The unframed payload of `reply`, CRC included (what the FC sends; for tests)."""
+    seq = reply.command_seq % SEQ_MODULUS
+    try:
+        body = _TIME_REPLY.pack(
+            VERSION, seq & 0xFF, seq >> 8, reply.command_tx_time_us, reply.rx_time_us,
+            reply.tx_time_us, 0,
+        )  # fmt: skip
+    except struct.error as exc:
+        raise ValueError(f"time reply field out of range: {exc}") from None
+    return body[:-1] + bytes([crc8(body[:-1])])
 
 
 def pack_command(packet: CommandPacket) -> bytes:
