@@ -22,6 +22,7 @@ from wftool.bench.clock import MODELS, ClockTrace, simulate
 from wftool.errors import UsageError
 from wftool.fsp import (
     ESTIMATORS,
+    ONE_WAY_ESTIMATORS,
     ClockState,
     EnvelopeClockEstimator,
     FcClock,
@@ -79,7 +80,7 @@ class SimulatedLink:
         return max(abs(e) for e in self.errors[index:])
 
 
-@pytest.fixture(params=ESTIMATORS)
+@pytest.fixture(params=ONE_WAY_ESTIMATORS)
 def clock(request: pytest.FixtureRequest) -> str:
     return request.param
 
@@ -411,7 +412,7 @@ def test_sliding_hull_matches_a_hull_built_from_scratch():
 
 
 def test_estimators_by_name():
-    assert ESTIMATORS == ("envelope", "kalman")
+    assert ESTIMATORS == (*ONE_WAY_ESTIMATORS, "twoway") == ("envelope", "kalman", "twoway")
     assert isinstance(make_estimator(), EnvelopeClockEstimator)
     assert isinstance(make_estimator("kalman"), KalmanClockEstimator)
     assert isinstance(StateDecoder().clock, EnvelopeClockEstimator)

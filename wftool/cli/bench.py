@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -12,6 +13,7 @@ from rich.table import Table
 
 from wftool.bench.build import bench_build
 from wftool.cli.build import build_options, options_from, project_from
+from wftool.cli.sitl import rate_option
 from wftool.verify.monitor import IntervalSummary
 
 out = Console(highlight=False, width=None if sys.stdout.isatty() else 200)
@@ -169,6 +171,79 @@ def bench_stream(rates: str, seconds: float, binary: Path | None, project_dir: P
     out.print(f"decode latency, read to frames: P50 {p50:.3f} ms, P99 {p99:.3f} ms")
 
 
+@bench_group.command("latency")
+@click.option("--seconds", default=60.0, show_default=True, help="Streaming time.")
+@rate_option
+@click.option(
+    "--time-reply/--no-time-reply",
+    default=True,
+    show_default=True,
+    help="Have the FC answer commands (fsp_time_reply) and score the two-way estimator.",
+)
+@click.option(
+    "--command-rate",
+    type=click.FloatRange(1.0, 1000.0),
+    default=50.0,
+    show_default=True,
+    help="Commands per second sent to the FC.",
+)
+@click.option(
+    "--binary",
+    type=click.Path(exists=True, dir_okay=False, path_type=Path),
+    help="SITL program [build the patched one].",
+)
+@click.option("--project", "project_dir", type=click.Path(file_okay=False, path_type=Path))
+def bench_latency(
+    seconds: float, rate_hz: int, time_reply: bool, command_rate: float, binary: Path | None,
+    project_dir: Path | None,
+) -> None:  # fmt: skip
+    """On the virtual FC, against its true clock: each clock estimator's true error, and the
+    true latency from FC sample to decoded frame."""
+    from wftool.bench.latency import run_latency_bench
+    from wftool.cli.sitl import build_sitl
+
+    result = run_latency_bench(
+        binary or build_sitl(project_dir), seconds, rate_hz, time_reply, command_rate
+    )
+    out.print(
+        f"bench latency: {result.seconds:g} s at fsp_rate_hz {result.rate_hz}, "
+        f"{result.frames:,} frames, {result.errors} rejected, {result.lost_frames} lost, "
+        f"{result.reanchors} re-anchors (host > 50 ms behind)"
+    )
+    table = Table(title="true clock error (frames after lock)", box=None, pad_edge=False)
+    for column in ("estimator", "lock s", "frames", "RMS µs", "P99 |err| µs",
+                   "RMS − d_min µs", "within ± uncertainty", "uncertainty µs"):  # fmt: skip
+        table.add_column(column, justify="right")
+    for e in result.estimators:
+        table.add_row(
+            e.name, f"{e.lock_s:.1f}", f"{e.frames:,}", f"{e.rms_s * 1e6:.1f}",
+            f"{e.p99_s * 1e6:.1f}",
+            "–" if math.isnan(e.envelope_rms_s) else f"{e.envelope_rms_s * 1e6:.1f}",
+            "–" if e.within_uncertainty is None else f"{100 * e.within_uncertainty:.1f} %",
+            "–" if e.uncertainty_s is None else f"{e.uncertainty_s * 1e6:.1f}",
+        )  # fmt: skip
+    out.print(table)
+    out.print(f"true minimum delay d_min (FC send → OBC read): {result.min_delay_s * 1e6:.1f} µs")
+    table = Table(title="true latency to the decoded frame", box=None, pad_edge=False)
+    for column in ("from", "P50 µs", "P99 µs", "max µs"):
+        table.add_column(column, justify="right")
+    for label, quantiles in (
+        ("FC sample instant", result.sample_to_frame),
+        ("FC packet send (tx_time_us)", result.send_to_frame),
+        ("read returned (decode only)", result.decode),
+        ("round trip (command → reply read)", result.rtt),
+    ):
+        if quantiles is not None:
+            table.add_row(
+                label, f"{quantiles.p50_s * 1e6:.1f}", f"{quantiles.p99_s * 1e6:.1f}",
+                f"{quantiles.max_s * 1e6:.1f}",
+            )  # fmt: skip
+    out.print(table)
+    if result.time_reply:
+        rejected = ", ".join(f"{k} {v}" for k, v in result.round_trip_rejected.items()) or "none"
+        out.print(f"round trips: {result.round_trips:,}; not used: {rejected}")
+
+
 def _quantiles(interval: IntervalSummary | None) -> str:
     if interval is None:
         return "–"
@@ -198,9 +273,9 @@ def bench_clock(seconds: float, seeds: int, drift: float, repeat: int) -> None:
     identify); "absolute" is against the true capture instant (includes that delay).
     """
     from wftool.bench.clock import GOAL_RATIO, GOAL_RMS_S, MIN_DELAY_S, REFERENCE, run_clock_bench
-    from wftool.fsp.clock import ESTIMATORS
+    from wftool.fsp.clock import ONE_WAY_ESTIMATORS
 
-    result = run_clock_bench(ESTIMATORS, seeds=range(1, seeds + 1), seconds=seconds,
+    result = run_clock_bench(ONE_WAY_ESTIMATORS, seeds=range(1, seeds + 1), seconds=seconds,
                              drift_ppm_per_min=drift, repeat=repeat)  # fmt: skip
     table = Table(
         title=f"clock estimators, {seconds:g} s runs × {seeds} seeds (worst seed shown); "
@@ -221,7 +296,7 @@ def bench_clock(seconds: float, seeds: int, drift: float, repeat: int) -> None:
             f"{summary.lock_time_s:.2f}", f"{summary.observations_per_s:,.0f}",
         )  # fmt: skip
     out.print(table)
-    for name in ESTIMATORS:
+    for name in ONE_WAY_ESTIMATORS:
         if name != REFERENCE:
             out.print(f"{name}: {result.speed_ratio(name):.2f}x the observations/s of {REFERENCE}")
     misses = ", ".join(f"{s.model} ({s.estimator})" for s in result.goal_misses())

@@ -15,6 +15,15 @@ from wftool.fsp.schedule import DEFAULT_RATE_HZ, RATE_HZ_MAX, RATE_HZ_MIN
 from wftool.sitl.process import DEFAULT_PORT_BASE, SIM_PORT_OFFSET, UART_COUNT
 from wftool.verify.session import VerifySession
 
+rate_option = click.option(
+    "--rate",
+    "rate_hz",
+    type=click.IntRange(RATE_HZ_MIN, RATE_HZ_MAX),
+    default=DEFAULT_RATE_HZ,
+    show_default=True,
+    help="fsp_rate_hz of the virtual FC.",
+)
+
 
 @click.command("sitl")
 @click.option(
@@ -27,14 +36,7 @@ from wftool.verify.session import VerifySession
     type=click.Path(file_okay=False, path_type=Path),
     help="Where SITL keeps eeprom.bin [a new scratch directory].",
 )
-@click.option(
-    "--rate",
-    "rate_hz",
-    type=click.IntRange(RATE_HZ_MIN, RATE_HZ_MAX),
-    default=DEFAULT_RATE_HZ,
-    show_default=True,
-    help="fsp_rate_hz to configure.",
-)
+@rate_option
 @click.option(
     "--motion/--no-motion",
     default=True,

@@ -53,8 +53,9 @@ criteria_options = _options(
                  help="Max rejected chunks (COBS, length, version, CRC)."),
     click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout."),
     click.option("--clock", type=click.Choice(ESTIMATORS),
-                 help=f"Clock estimator for the OBC times: {ESTIMATORS[0]} (lower envelope) or "
-                 f"kalman (the paper's filter) [{ESTIMATORS[0]}; replay: the recorded run's]."),
+                 help=f"Clock estimator for the OBC times: {ESTIMATORS[0]} (lower envelope), "
+                 "kalman (the paper's filter) or twoway (the envelope and the FC's time replies) "
+                 f"[{ESTIMATORS[0]}; replay: the recorded run's]."),
 )  # fmt: skip
 
 run_options = _options(

@@ -9,6 +9,8 @@
 - `dshot_bidir = ON` (motor RPM for the RPM filters), the accelerometer RPM-filter defaults,
   `fsp_rate_hz`, and `serial_update_rate_hz` at the highest value the FC allows (it sets
   how often the serial task drains the uplink; the stock default is 100 Hz).
+- On request, `fsp_time_reply` (two-way timing, spec §10): the FC answers each command with
+  a time reply. Left as it is unless asked for.
 """
 
 from __future__ import annotations
@@ -66,8 +68,11 @@ def function_names(mask: int) -> str:
     )
 
 
-def fsp_planner(uart: int, baud: int, rate_hz: int = DEFAULT_RATE_HZ) -> Planner:
-    """A planner (see `wftool.fc.params.apply_plan`) for FSP on UART`uart` at `baud`."""
+def fsp_planner(
+    uart: int, baud: int, rate_hz: int = DEFAULT_RATE_HZ, time_reply: bool | None = None
+) -> Planner:
+    """A planner (see `wftool.fc.params.apply_plan`) for FSP on UART`uart` at `baud`;
+    `time_reply` sets `fsp_time_reply` (None: leave it)."""
 
     def plan(session: CliSession) -> Plan:
         ports = {
@@ -106,6 +111,8 @@ def fsp_planner(uart: int, baud: int, rate_hz: int = DEFAULT_RATE_HZ) -> Planner
             )
         commands += [set_command(name, value) for name, value in ACC_RPM_FILTER_DEFAULTS.items()]
         commands.append(set_command("fsp_rate_hz", str(rate_hz)))
+        if time_reply is not None:
+            commands.append(set_command("fsp_time_reply", "ON" if time_reply else "OFF"))
         update_rate = session.get("serial_update_rate_hz").int_range
         if update_rate:
             commands.append(set_command("serial_update_rate_hz", str(update_rate[1])))

@@ -593,16 +593,27 @@ class EnvelopeClockEstimator:
         )
 
 
-ESTIMATORS: tuple[str, ...] = ("envelope", "kalman")
-"""Estimator names for `make_estimator` (and `--clock`); the first is the default."""
+def _two_way() -> ClockEstimator:
+    from wftool.fsp.twoway import TwoWayClockEstimator  # it builds on this module
+
+    return TwoWayClockEstimator()
+
+
+ONE_WAY_ESTIMATORS: tuple[str, ...] = ("envelope", "kalman")
+"""Those that need nothing but the stream; the first is the default."""
+ESTIMATORS: tuple[str, ...] = (*ONE_WAY_ESTIMATORS, "twoway")
+"""Estimator names for `make_estimator` (and `--clock`): "twoway" takes the FC's time replies
+too (spec §8.3, §10), and without them is its one-way line."""
 _FACTORIES: dict[str, Callable[[], ClockEstimator]] = {
     "envelope": EnvelopeClockEstimator,
     "kalman": KalmanClockEstimator,
+    "twoway": _two_way,
 }
 
 
 def make_estimator(name: str = ESTIMATORS[0]) -> ClockEstimator:
-    """A fresh estimator by name: "envelope" (default) or "kalman" (the paper's reference)."""
+    """A fresh estimator by name: "envelope" (default), "kalman" (the paper's reference) or
+    "twoway" (the envelope with round trips: `wftool.fsp.twoway`)."""
     try:
         return _FACTORIES[name]()
     except KeyError:

@@ -4,25 +4,48 @@
 input. On top of framing (`framing.Deframer`) it keeps the books a flight needs:
 transport loss (E1 `seq` gaps, or `sample_time_us` gaps without E1) apart from frames the
 FC itself dropped (E1 `drops`), wraps and resets of the FC clock, and each frame's time
-on the OBC clock.
+on the OBC clock. With E2 (spec §10) it also takes the FC's time replies, places their FC
+times in the stream's and pairs them with the commands sent (`round_trips`); a decoder
+without E2 counts each reply as one chunk of bad length.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass, field, fields
 
-from wftool.fsp.clock import U32, ClockEstimator, ClockState, FcClock, make_estimator
-from wftool.fsp.framing import COMMAND_VERSIONS, STATE_VERSIONS, Deframer, Rejection
+from wftool.fsp.clock import (
+    U32,
+    ClockEstimator,
+    ClockState,
+    FcClock,
+    RoundTripObserver,
+    make_estimator,
+)
+from wftool.fsp.framing import (
+    COMMAND_VERSIONS,
+    STATE_E2_VERSIONS,
+    STATE_VERSIONS,
+    Deframer,
+    Rejection,
+)
 from wftool.fsp.packets import (
     DROPS_MODULUS,
     SEQ_MODULUS,
+    TIME_REPLY_LENGTH,
     CommandPacket,
     StatePacket,
+    TimeReply,
     parse_command,
     parse_state,
+    parse_time_reply,
 )
+from wftool.fsp.twoway import RoundTripMatcher, RoundTripRejection
 
 _SEQ_HALF = SEQ_MODULUS // 2
+_HALF_U32 = U32 // 2
+REPLY_PLACE_US = 1_000_000
+"""A time reply's FC send time lies this close to the latest state packet's (spec §10)."""
 
 
 @dataclass
@@ -43,6 +66,8 @@ class StreamStats:
     """Whether the latest packet carried the E1 counters."""
     wraps: int = 0
     resets: int = 0
+    time_replies: int = 0
+    """E2 time replies decoded (with E2 on; spec §10)."""
 
     @property
     def errors(self) -> int:
@@ -66,15 +91,23 @@ class StreamStats:
 class StateDecoder:
     """Decodes the FC → OBC stream. One instance per port; not thread-safe."""
 
-    def __init__(self, clock: ClockEstimator | str | None = None) -> None:
-        """`clock`: an estimator, or its name in `clock.ESTIMATORS` (default: "envelope")."""
-        self._deframer = Deframer(STATE_VERSIONS)
+    def __init__(
+        self, clock: ClockEstimator | str | None = None, *, time_replies: bool | None = None
+    ) -> None:
+        """`clock`: an estimator, or its name in `clock.ESTIMATORS` (default: "envelope").
+        `time_replies`: take E2 time replies (default: when the clock takes round trips)."""
         self._fc_clock = FcClock()
         if clock is None:
             clock = make_estimator()
         elif isinstance(clock, str):
             clock = make_estimator(clock)
         self.clock: ClockEstimator = clock
+        if time_replies is None:
+            time_replies = isinstance(clock, RoundTripObserver)
+        self.round_trips: RoundTripMatcher | None = RoundTripMatcher() if time_replies else None
+        """The commands sent and the replies paired with them (E2 only): a sender records
+        each command here (`FspReader` does)."""
+        self._deframer = Deframer(STATE_E2_VERSIONS if time_replies else STATE_VERSIONS)
         self.stats = StreamStats(rejected=self._deframer.rejected)
         self._last: StatePacket | None = None
         self._epoch = 0
@@ -90,11 +123,27 @@ class StateDecoder:
 
     def feed(self, data: bytes, arrival_time: float | None = None) -> list[StatePacket]:
         """Packets completed by `data`; `arrival_time` (OBC clock, s) enables clock alignment."""
-        stats = self.stats
-        stats.bytes += len(data)
-        packets = [parse_state(payload) for payload in self._deframer.feed(data)]
+        self.stats.bytes += len(data)
+        payloads = self._deframer.feed(data)
+        if self.round_trips is None:
+            return self._account([parse_state(payload) for payload in payloads], arrival_time)
+        packets: list[StatePacket] = []
+        start = 0
+        for index, payload in enumerate(payloads):
+            if len(payload) == TIME_REPLY_LENGTH:  # the stream's order matters: packets first
+                packets += self._account(map(parse_state, payloads[start:index]), arrival_time)
+                self._time_reply(parse_time_reply(payload), arrival_time)
+                start = index + 1
+        return packets + self._account(map(parse_state, payloads[start:]), arrival_time)
+
+    def _account(
+        self, parsed: Iterable[StatePacket], arrival_time: float | None
+    ) -> list[StatePacket]:
+        """Unwrap, time and count `parsed`, the stream's next state packets."""
+        packets = list(parsed)
         if not packets:
             return packets
+        stats = self.stats
         unwrap = self._fc_clock.unwrap
         clock = self.clock
         last = self._last
@@ -126,6 +175,34 @@ class StateDecoder:
         stats.wraps = self._fc_clock.wraps
         stats.resets = self._fc_clock.resets
         return packets
+
+    def _time_reply(self, reply: TimeReply, arrival_time: float | None) -> None:
+        """Place a reply's FC times against the latest state packet's, then pair it."""
+        self.stats.time_replies += 1
+        round_trips = self.round_trips
+        assert round_trips is not None
+        last = self._last
+        if arrival_time is None:
+            return  # no OBC time: no round trip
+        ahead = (reply.tx_time_us - last.tx_time_us) % U32 if last is not None else U32
+        if ahead >= _HALF_U32:
+            ahead -= U32
+        held = (reply.tx_time_us - reply.rx_time_us) % U32
+        if held >= _HALF_U32:  # answered before it was received
+            round_trips.rejected[RoundTripRejection.CLOCK_STEP] += 1
+            return
+        if last is None or abs(ahead) > REPLY_PLACE_US or held > REPLY_PLACE_US:
+            round_trips.rejected[RoundTripRejection.STALE] += 1  # another FC epoch's reply
+            return
+        assert last.time_us is not None
+        reply.sent_us = last.time_us + ahead
+        reply.received_us = reply.sent_us - held
+        reply.arrival_time = arrival_time
+        trip = round_trips.match(reply)
+        if trip is not None and isinstance(self.clock, RoundTripObserver):
+            self.clock.observe_round_trip(
+                trip.obc_sent, trip.fc_received_us, trip.fc_sent_us, trip.obc_received
+            )
 
     def _count_loss(
         self, last: StatePacket, packet: StatePacket, base_us: int, second_us: int

@@ -12,6 +12,7 @@ from collections.abc import Callable, Sequence
 
 from wftool.fsp.framing import encode_frame
 from wftool.fsp.packets import (
+    SEQ_MODULUS,
     CommandPacket,
     StatePacket,
     TimeReply,
@@ -19,6 +20,7 @@ from wftool.fsp.packets import (
     pack_state,
     pack_time_reply,
 )
+from wftool.fsp.twoway import RoundTripMatcher
 
 U32_MASK = 0xFFFF_FFFF
 
@@ -39,17 +41,31 @@ def encode_command(packet: CommandPacket) -> bytes:
 
 
 class CommandSender:
-    """Builds consecutive command packets: seq counts up, tx_time_us is the OBC clock."""
+    """Builds consecutive command packets: seq counts up, tx_time_us is the OBC clock.
 
-    def __init__(self, now: Callable[[], float] = time.monotonic) -> None:
+    With `round_trips` (E2, spec §10) each command is recorded there with its OBC send time,
+    for the FC's time reply to be paired with.
+    """
+
+    def __init__(
+        self, now: Callable[[], float] = time.monotonic, round_trips: RoundTripMatcher | None = None
+    ) -> None:
         self._now = now
+        self.round_trips = round_trips
         self.seq = 0
 
-    def encode(self, rc: Sequence[int]) -> bytes:
-        """Wire bytes of the next command carrying `rc` (roll, pitch, yaw, throttle, aux3, aux4)."""
+    def encode(self, rc: Sequence[int], now: float | None = None) -> bytes:
+        """Wire bytes of the next command carrying `rc` (roll, pitch, yaw, throttle, aux3,
+        aux4), stamped with OBC time `now` (default: the clock's now)."""
+        return encode_command(self.next(rc, now))
+
+    def next(self, rc: Sequence[int], now: float | None = None) -> CommandPacket:
+        """The next command packet (see `encode`), recorded as sent."""
+        sent_at = self._now() if now is None else now
         packet = CommandPacket(
-            rc=tuple(rc), seq=self.seq, tx_time_us=int(self._now() * 1e6) & U32_MASK
+            rc=tuple(rc), seq=self.seq % SEQ_MODULUS, tx_time_us=int(sent_at * 1e6) & U32_MASK
         )
-        wire = encode_command(packet)
+        if self.round_trips is not None:
+            self.round_trips.sent(packet.seq, packet.tx_time_us, sent_at)
         self.seq += 1
-        return wire
+        return packet

@@ -11,7 +11,8 @@ cannot be opened or that vanishes raises `wftool.errors.PortError` and nothing e
 
 `FspPort` is the port alone (bytes in, commands out), for a caller that decodes itself (the
 verify monitor keeps one `StateDecoder` per connection); `FspReader` is a port with its
-`StateDecoder`.
+`StateDecoder`. With two-way timing (`StateDecoder("twoway")`, the FC's `fsp_time_reply`
+ON) the commands it sends are paired with the FC's time replies (spec §10).
 """
 
 from __future__ import annotations
@@ -27,8 +28,8 @@ import serial
 from wftool.errors import PortError
 from wftool.fc.transport import open_port, port_errors
 from wftool.fsp.decoder import StateDecoder
-from wftool.fsp.encoder import CommandSender
-from wftool.fsp.packets import SensorFrame, StatePacket
+from wftool.fsp.encoder import CommandSender, encode_command
+from wftool.fsp.packets import CommandPacket, SensorFrame, StatePacket
 
 DEFAULT_BAUDRATE = 2_000_000
 """The FSP baud rate wftool assumes unless told otherwise (`verify`, the virtual FC)."""
@@ -95,11 +96,13 @@ class FspPort:
             data = port.read(1)
             return data + port.read(port.in_waiting) if data else data
 
-    def send_command(self, rc: Sequence[int]) -> None:
-        """Send RC values (roll, pitch, yaw, throttle, aux3, aux4) to the FC."""
-        wire = self._sender.encode(rc)
+    def send_command(self, rc: Sequence[int], now: float | None = None) -> CommandPacket:
+        """Send RC values (roll, pitch, yaw, throttle, aux3, aux4) to the FC, stamped with OBC
+        time `now` (default: the clock's now); the packet sent."""
+        packet = self._sender.next(rc, now)
         with port_errors(self.url):
-            self.port.write(wire)
+            self.port.write(encode_command(packet))
+        return packet
 
 
 class FspReader(FspPort):
@@ -115,6 +118,7 @@ class FspReader(FspPort):
     ) -> None:
         super().__init__(url, baudrate, now=now)
         self.decoder = decoder if decoder is not None else StateDecoder()
+        self._sender.round_trips = self.decoder.round_trips  # E2: replies answer these
 
     def read(self, timeout: float = 0.1) -> list[StatePacket]:
         """Packets completed by the bytes that arrive within `timeout` (maybe none)."""

@@ -130,11 +130,14 @@ class VirtualFcSession:
         rate_hz: int = DEFAULT_RATE_HZ,
         motion: Motion | None = None,
         port_base: int = DEFAULT_PORT_BASE,
+        time_reply: bool = False,
     ) -> None:
+        """`time_reply`: the FC answers each command with a time reply (spec §10)."""
         self.fc = VirtualFC(binary, workdir, port_base=port_base)
         self.workdir = workdir
         self._baud = baud
         self.rate_hz = rate_hz
+        self.time_reply = time_reply
         self._feeder = MotionFeeder(motion, self.fc.sim_state_port) if motion else None
 
     @property
@@ -155,7 +158,9 @@ class VirtualFcSession:
         self.fc.start()
         try:
             apply_plan(
-                self.fc, fsp_planner(FSP_UART, self._baud, self.rate_hz), self.workdir / "backups"
+                self.fc,
+                fsp_planner(FSP_UART, self._baud, self.rate_hz, self.time_reply),
+                self.workdir / "backups",
             )
             if self._feeder is not None:
                 self._feeder.start()

@@ -1,0 +1,77 @@
+"""E2 time replies from the real firmware (the patched SITL): off by default, and once
+`fsp_time_reply` is ON, every command answered at most once with times that pair up."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import pytest
+
+from wftool.fsp import CommandSender, FspReader, StateDecoder
+from wftool.fsp.encoder import encode_command
+from wftool.fsp.twoway import RoundTrip
+from wftool.sitl.process import free_port_base
+from wftool.sitl.session import VirtualFcSession
+
+pytestmark = pytest.mark.slow
+
+COMMAND = (1500, 1500, 1500, 1000, 1000, 1000)
+
+
+def exchange(session: VirtualFcSession, commands: int, period_s: float = 0.02) -> StateDecoder:
+    """Send `commands` commands, one per `period_s` (more than an FSP task period, so each is
+    answered), once the stream runs; an E2 decoder pairs whatever comes back."""
+    decoder = StateDecoder(time_replies=True)
+    with FspReader(session.fsp_url, decoder=decoder) as reader:
+        while not decoder.stats.packets:
+            reader.read(0.05)
+        for _ in range(commands):
+            reader.send_command(COMMAND)
+            until = time.monotonic() + period_s
+            while (left := until - time.monotonic()) > 0:
+                reader.read(left)
+        until = time.monotonic() + 0.5  # the last replies
+        while (left := until - time.monotonic()) > 0:
+            reader.read(left)
+    return decoder
+
+
+def test_time_reply_is_off_by_default(sitl_binary: Path, tmp_path: Path) -> None:
+    with VirtualFcSession(sitl_binary, tmp_path, port_base=free_port_base()) as session:
+        decoder = exchange(session, 50)
+    assert decoder.stats.packets > 400
+    assert decoder.stats.time_replies == 0 and decoder.stats.errors == 0
+
+
+def test_time_reply_answers_every_command_once(sitl_binary: Path, tmp_path: Path) -> None:
+    session = VirtualFcSession(sitl_binary, tmp_path, port_base=free_port_base(), time_reply=True)
+    with session:
+        decoder = exchange(session, 100)
+    matcher = decoder.round_trips
+    assert matcher is not None
+    assert decoder.stats.errors == 0 and decoder.stats.lost_frames == 0
+    assert matcher.matched == decoder.stats.time_replies == 100
+    assert not any(matcher.rejected.values())
+
+
+def test_two_commands_in_one_task_run_get_one_reply_for_the_newest(
+    sitl_binary: Path, tmp_path: Path
+) -> None:
+    session = VirtualFcSession(sitl_binary, tmp_path, port_base=free_port_base(), time_reply=True)
+    trips: list[RoundTrip] = []
+    with session, FspReader(session.fsp_url, decoder=StateDecoder("twoway")) as reader:
+        matcher = reader.decoder.round_trips
+        assert matcher is not None
+        matcher.on_round_trip = trips.append
+        while not reader.decoder.stats.packets:
+            reader.read(0.05)
+        sender = CommandSender(round_trips=matcher)
+        now = time.monotonic()
+        first, second = sender.next(COMMAND, now), sender.next(COMMAND, now + 1e-6)
+        reader.port.write(encode_command(first) + encode_command(second))  # one write
+        until = time.monotonic() + 0.3
+        while (left := until - time.monotonic()) > 0:
+            reader.read(left)
+    assert [trip.obc_sent for trip in trips] == [now + 1e-6]
+    assert reader.decoder.stats.time_replies == 1

@@ -1,0 +1,95 @@
+"""The virtual FC's true clock read from a SITL log (`wftool.sitl.truth`): anchors, epochs,
+wraps. The log lines are the exact format patch 0003 prints; the SITL itself is used in
+tests/bench/test_latency.py."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from wftool.errors import SitlError
+from wftool.sitl.truth import TrueClock, read_anchors
+
+U32 = 1 << 32
+
+
+def anchor(fc_us: int, monotonic_ns: int, reason: str = "start") -> str:
+    return (
+        f"[SITL] lockstep anchor: fc_us={fc_us} monotonic_ns={monotonic_ns} step_us=125 "
+        f"reason={reason}\n"
+    )
+
+
+def write(path: Path, *lines: str) -> Path:
+    with path.open("a") as log:
+        log.writelines(lines)
+    return path
+
+
+def test_maps_fc_time_through_the_latest_anchor_before_it(tmp_path: Path) -> None:
+    log = write(
+        tmp_path / "sitl.log",
+        "bind port 5761 for UART1\n",
+        anchor(500_000, 10_000_000_000),
+        "[NEW]UART1: 1,1\n",
+        anchor(3_000_000, 12_600_000_000, "host-lag"),  # the host fell 100 ms behind
+    )
+    clock = TrueClock(log)
+    assert [a.reason for a in clock.anchors] == ["start", "host-lag"]
+    assert clock.monotonic(500_000) == pytest.approx(10.0, abs=1e-12)
+    assert clock.monotonic(2_999_875) == pytest.approx(12.499875, abs=1e-12)
+    assert clock.monotonic(3_000_000) == pytest.approx(12.6, abs=1e-12)
+    assert clock.monotonic(4_000_000) == pytest.approx(13.6, abs=1e-12)
+
+
+def test_a_line_being_written_waits_and_refresh_picks_up_new_anchors(tmp_path: Path) -> None:
+    log = write(tmp_path / "sitl.log", anchor(500_000, 10_000_000_000))
+    half = anchor(2_000_000, 11_600_000_000, "host-lag")
+    write(log, half[:30])
+    clock = TrueClock(log)
+    assert len(clock.anchors) == 1
+    write(log, half[30:])
+    clock.refresh()
+    assert clock.monotonic(2_000_000) == pytest.approx(11.6, abs=1e-12)
+
+
+def test_a_restarted_sitl_is_a_new_clock(tmp_path: Path) -> None:
+    log = write(tmp_path / "sitl.log", anchor(500_000, 10_000_000_000))
+    clock = TrueClock(log)
+    write(log, anchor(400_000, 50_000_000_000), anchor(900_000, 50_600_000_000, "host-lag"))
+    clock.refresh()
+    assert clock.restarted and len(clock.anchors) == 1  # the old process's anchors stay final
+    assert clock.monotonic(900_000) == pytest.approx(10.4, abs=1e-12)
+    fresh = TrueClock(log)  # the latest process: its start and what followed
+    assert [a.fc_us for a in fresh.anchors] == [400_000, 900_000]
+
+
+def test_u32_times_are_lifted_to_the_sitls_micros64(tmp_path: Path) -> None:
+    """After 71.6 min the decoder's times (unwrapped from the first raw reading) and raw
+    `micros()` differ from micros64 by whole wraps: lifting finds the right one."""
+    start = U32 + 5_000_000  # this SITL has run 72 minutes
+    log = write(tmp_path / "sitl.log", anchor(start, 4_000_000_000_000))
+    clock = TrueClock(log)
+    now = 4_000.0 + 10.0  # host time: FC time is start + 10 s
+    sample = start + 9_000_000
+    assert clock.micros64(sample % U32, now) == sample
+    assert clock.micros64(sample - U32, now) == sample
+    assert clock.instant(sample % U32, now) == pytest.approx(4_009.0, abs=1e-9)
+    assert clock.micros64((start - 1000) % U32, now) == start - 1000  # before the anchor
+
+
+def test_read_anchors_resumes_at_an_offset(tmp_path: Path) -> None:
+    log = write(tmp_path / "sitl.log", anchor(1, 1000))
+    first, offset = read_anchors(log)
+    write(log, anchor(2, 2000, "host-lag"))
+    second, _ = read_anchors(log, offset)
+    assert [a.fc_us for a in first] == [1] and [a.fc_us for a in second] == [2]
+
+
+def test_a_log_without_anchors_is_a_clear_error(tmp_path: Path) -> None:
+    log = write(tmp_path / "sitl.log", "bind port 5761 for UART1\n")
+    with pytest.raises(SitlError, match="no lockstep anchor"):
+        TrueClock(log)
+    with pytest.raises(SitlError, match="cannot read"):
+        TrueClock(tmp_path / "missing.log")

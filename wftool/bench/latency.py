@@ -1,0 +1,262 @@
+"""True clock error and true latency on the virtual FC, against the SITL's own clock.
+
+The patched SITL logs the true FC→host mapping (`wftool.sitl.truth`), and the host's
+CLOCK_MONOTONIC is the OBC clock here, so every FC time has a known true OBC instant. The
+bench streams from a fresh virtual FC for the given time with a real reader and decoder —
+sending commands at `command_rate_hz` and, with `time_reply`, having the FC answer them — and
+measures:
+
+- the true one-way latency: from a frame's true sample instant, and from its packet's true
+  send instant, to the decoded frame being available (right after `feed` returns);
+- each clock estimator's true error, replaying exactly the bytes and commands of the run
+  through a decoder per estimator: every frame's `obc_time` against its true sample instant
+  (absolute), and for one-way estimators also against the instant plus the true minimum
+  delay (what one-way timing can find, spec §8); the two-way estimator's share of frames
+  whose true error lies within the uncertainty it reports.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+import statistics
+import tempfile
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from wftool.bench.clock import _p99_abs, _rms
+from wftool.fsp import FspReader, StateDecoder
+from wftool.fsp.clock import ESTIMATORS
+from wftool.fsp.schedule import DEFAULT_RATE_HZ
+from wftool.fsp.twoway import RoundTrip, TwoWayClockEstimator
+from wftool.sitl.process import free_port_base
+from wftool.sitl.session import VirtualFcSession
+from wftool.sitl.truth import TrueClock
+
+COMMAND = (1500, 1500, 1500, 1000, 1000, 1000)
+READ_TIMEOUT_S = 0.05
+
+
+@dataclass(frozen=True)
+class Quantiles:
+    p50_s: float
+    p99_s: float
+    max_s: float
+
+    @classmethod
+    def of(cls, values: Sequence[float]) -> Quantiles | None:
+        if not values:
+            return None
+        ordered = sorted(values)
+        last = len(ordered) - 1
+        return cls(ordered[round(0.5 * last)], ordered[round(0.99 * last)], ordered[-1])
+
+
+@dataclass(frozen=True)
+class EstimatorError:
+    """One estimator's true error over the frames decoded once it was locked."""
+
+    name: str
+    lock_s: float
+    """From the first packet to lock (NaN: never locked)."""
+    frames: int
+    rms_s: float
+    """Against the true sample instant."""
+    p99_s: float
+    envelope_rms_s: float
+    """One-way: against the true instant plus the true minimum delay (NaN for two-way)."""
+    within_uncertainty: float | None = None
+    """Two-way: the share of frames whose true error is within the reported uncertainty."""
+    uncertainty_s: float | None = None
+    """Two-way: the median uncertainty it reported."""
+
+
+@dataclass(frozen=True)
+class LatencyBenchResult:
+    seconds: float
+    rate_hz: int
+    time_reply: bool
+    packets: int
+    frames: int
+    errors: int
+    lost_frames: int
+    min_delay_s: float
+    """The fastest packet: true send instant to read."""
+    sample_to_frame: Quantiles | None
+    """True sample instant → decoded frame available."""
+    send_to_frame: Quantiles | None
+    """True packet send instant (`tx_time_us`) → decoded frame available."""
+    decode: Quantiles | None
+    """Read returned → its frames decoded."""
+    estimators: tuple[EstimatorError, ...]
+    round_trips: int
+    rtt: Quantiles | None
+    round_trip_rejected: dict[str, int] = field(default_factory=dict)
+    reanchors: int = 0
+    """Times the SITL fell more than 50 ms behind the host clock and re-anchored."""
+
+
+@dataclass
+class _Capture:
+    """What the live run saw: its events in order, and each read's packets' FC times."""
+
+    events: list[tuple[str, float, object]] = field(default_factory=list)
+    """("bytes", read time, data) and ("sent", OBC stamp, (seq, tx_time_us))."""
+    reads: list[tuple[float, float, list[int], list[int]]] = field(default_factory=list)
+    """(read time, decoded time, packet send FC times, frame FC times) per read."""
+
+
+def _capture(
+    url: str, seconds: float, decoder: StateDecoder, command_rate_hz: float | None
+) -> _Capture:
+    capture = _Capture()
+    now = time.monotonic
+    rng = random.Random(1)
+    with FspReader(url, decoder=decoder) as reader:
+        end = now() + seconds
+        next_command = now()
+        while (t := now()) < end:
+            if command_rate_hz and t >= next_command:
+                packet = reader.send_command(COMMAND, now=t)
+                capture.events.append(("sent", t, (packet.seq, packet.tx_time_us)))
+                # a random phase: an OBC whose commands kept a fixed phase to the FC's FSP task
+                # (only a SITL, sharing the host's clock, does) would always wait as long for it
+                next_command = max(next_command + rng.uniform(0.5, 1.5) / command_rate_hz, t)
+            data = reader.read_bytes(min(READ_TIMEOUT_S, max(0.0, next_command - now())))
+            if not data:
+                continue
+            read_at = now()
+            packets = decoder.feed(data, read_at)
+            decoded_at = now()
+            capture.events.append(("bytes", read_at, data))
+            if packets:
+                sends = [p.time_us for p in packets]
+                frames = [f.time_us for p in packets for f in p.frames]
+                capture.reads.append((read_at, decoded_at, sends, frames))  # type: ignore[arg-type]
+    return capture
+
+
+def _replay(
+    name: str,
+    capture: _Capture,
+    true_obc: Callable[[int], float],
+    min_delay_s: float,
+    time_reply: bool,
+    on_round_trip: Callable[[RoundTrip], None] | None = None,
+) -> EstimatorError:
+    """The run's bytes and commands through a decoder with estimator `name`, scored."""
+    decoder = StateDecoder(name, time_replies=time_reply)
+    matcher = decoder.round_trips
+    if matcher is not None:
+        matcher.on_round_trip = on_round_trip
+    clock = decoder.clock
+    two_way = clock if isinstance(clock, TwoWayClockEstimator) else None
+    errors: list[float] = []
+    covered = 0
+    uncertainties: list[float] = []
+    first = lock = math.nan
+    for kind, t, payload in capture.events:
+        if kind == "sent":
+            if matcher is not None:
+                seq, tx_time_us = payload  # type: ignore[misc]
+                matcher.sent(seq, tx_time_us, t)
+            continue
+        packets = decoder.feed(payload, t)  # type: ignore[arg-type]
+        if not packets:
+            continue
+        if first != first:
+            first = t
+        state = clock.state
+        if not state.locked or (two_way is not None and not two_way.two_way.active):
+            continue
+        if lock != lock:
+            lock = t - first
+        for packet in packets:
+            for frame in packet.frames:
+                error = frame.obc_time - true_obc(frame.time_us)  # type: ignore[operator]
+                errors.append(error)
+                if two_way is not None:
+                    covered += abs(error) <= state.uncertainty_s
+        if two_way is not None:
+            uncertainties.append(state.uncertainty_s)
+    return EstimatorError(
+        name=name,
+        lock_s=lock,
+        frames=len(errors),
+        rms_s=_rms(errors),
+        p99_s=_p99_abs(errors),
+        envelope_rms_s=math.nan if two_way else _rms([e - min_delay_s for e in errors]),
+        within_uncertainty=covered / len(errors) if two_way and errors else None,
+        uncertainty_s=statistics.median(uncertainties) if uncertainties else None,
+    )
+
+
+def run_latency_bench(
+    binary: Path,
+    seconds: float = 60.0,
+    rate_hz: int = DEFAULT_RATE_HZ,
+    time_reply: bool = True,
+    command_rate_hz: float = 50.0,
+) -> LatencyBenchResult:
+    """Stream from a fresh virtual FC for `seconds`; see the module docstring."""
+    with tempfile.TemporaryDirectory(prefix="wftool-bench-") as scratch:
+        session = VirtualFcSession(
+            binary, Path(scratch) / "fc", rate_hz=rate_hz, port_base=free_port_base(),
+            time_reply=time_reply,
+        )  # fmt: skip
+        with session:
+            truth = TrueClock(session.fc.log_path)
+            live = StateDecoder("twoway" if time_reply else None)
+            capture = _capture(session.fsp_url, seconds, live, command_rate_hz)
+            truth.refresh()
+    end = time.monotonic()
+
+    def true_obc(fc_time_us: int) -> float:
+        return truth.instant(fc_time_us, end)
+
+    sample_to_frame, send_to_frame, decode, delays = [], [], [], []
+    for read_at, decoded_at, sends, frames in capture.reads:
+        decode.append(decoded_at - read_at)
+        for fc_us in sends:
+            send_to_frame.append(decoded_at - true_obc(fc_us))
+            delays.append(read_at - true_obc(fc_us))
+        sample_to_frame += [decoded_at - true_obc(fc_us) for fc_us in frames]
+    min_delay = min(delays, default=math.nan)
+    rtts: list[float] = []
+    names = [n for n in ESTIMATORS if time_reply or n != "twoway"]
+
+    def collect(trip: RoundTrip) -> None:
+        rtts.append(trip.rtt_s)
+
+    scored = tuple(
+        _replay(name, capture, true_obc, min_delay, time_reply, collect if two else None)
+        for name in names
+        for two in [name == "twoway"]
+    )
+    stats = live.stats
+    rejected = {}
+    if live.round_trips is not None and isinstance(live.clock, TwoWayClockEstimator):
+        causes = {**live.round_trips.rejected}
+        for cause, count in live.clock.rejected.items():
+            causes[cause] += count
+        rejected = {cause.value: count for cause, count in causes.items() if count}
+    return LatencyBenchResult(
+        seconds=seconds,
+        rate_hz=rate_hz,
+        time_reply=time_reply,
+        packets=stats.packets,
+        frames=stats.frames,
+        errors=stats.errors,
+        lost_frames=stats.lost_frames,
+        min_delay_s=min_delay,
+        sample_to_frame=Quantiles.of(sample_to_frame),
+        send_to_frame=Quantiles.of(send_to_frame),
+        decode=Quantiles.of(decode),
+        estimators=scored,
+        round_trips=len(rtts),
+        rtt=Quantiles.of(rtts),
+        round_trip_rejected=rejected,
+        reanchors=sum(1 for a in truth.anchors if a.reason != "start"),
+    )
