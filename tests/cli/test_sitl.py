@@ -67,3 +67,9 @@ def test_serving_records_and_serves_foxglove_until_interrupted(
     assert replayed["frames"] == counts["/fsp/imu"]
     assert replayed["clock_estimator"] == "kalman"
     assert replayed["expected_rate_hz"] and replayed["lost_frames"] == 0
+
+
+def test_time_reply_with_verify_needs_commands(capsys: pytest.CaptureFixture[str]) -> None:
+    code, _, err = run_cli(capsys, "sitl", "--time-reply", "--verify", "3")
+    assert code == 2
+    assert err.strip() == "error: --time-reply answers commands: add --uplink to send them"

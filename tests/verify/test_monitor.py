@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import json
+
 import pytest
 
 from tests.fsp.test_decoder import frame, stream
-from wftool.fsp import StatePacket
+from tests.fsp.test_twoway import RC, Link
+from wftool.fsp import CommandPacket, StatePacket
 from wftool.fsp.encoder import encode_state
 from wftool.verify.criteria import Criteria, judge
 from wftool.verify.monitor import IntervalHistogram, StreamMonitor
@@ -119,3 +122,40 @@ def test_uplink_echo_is_matched_with_round_trip_time():
     assert uplink.rtt_p50_ms == pytest.approx(20.1, abs=0.5)  # 15 ms echo, seen on the next packet
     checks = judge(monitor.summary(), Criteria(uplink=True)).checks
     assert [c.passed for c in checks if c.name == "uplink echoed"] == [True]
+
+
+def feed_two_way(monitor: StreamMonitor, seconds: float, record=None) -> int:
+    """A simulated link whose FC answers every command (tests/fsp/test_twoway.py), fed as the
+    live loop does; `record(kind, t, payload)` sees every event. The number of commands."""
+    link = Link(seed=11)
+    monitor.connected(0.0)
+    commands = 0
+    for t, _, kind, payload in link.build(seconds):
+        if kind == "send":
+            command = CommandPacket(RC, payload, int(t * 1e6) % (1 << 32))
+            monitor.command_sent(RC, t, command)
+            commands += 1
+        else:
+            monitor.feed(payload, t)
+        if record is not None:
+            record(kind, t, payload)
+    return commands
+
+
+def test_time_replies_show_round_trips_and_the_offset_uncertainty():
+    monitor = StreamMonitor("test", clock="twoway")
+    commands = feed_two_way(monitor, 12.0)
+    summary = monitor.summary()
+    assert summary.errors == 0  # the replies are decoded, not rejected
+    trip = summary.round_trip
+    assert trip is not None and trip.count == commands
+    assert 800 < trip.p50_us < 2500  # 0.4 ms + jitter each way, the FC's task wait on the uplink
+    two_way = summary.two_way
+    assert two_way is not None and two_way.active
+    assert 0 < two_way.uncertainty_s < trip.p50_us * 1e-6
+    assert summary.clock.uncertainty_s == two_way.uncertainty_s
+    assert json.loads(json.dumps(summary.as_json()))["two_way"]["active"] is True
+    # the envelope alone shows the round trips, but has no offset from them
+    plain = StreamMonitor("test")
+    feed_two_way(plain, 3.0)
+    assert plain.summary().round_trip is not None and plain.summary().two_way is None

@@ -9,10 +9,11 @@ from pathlib import Path
 import pytest
 from mcap.reader import make_reader
 
-from tests.verify.test_monitor import feed_steady
+from tests.fsp.test_twoway import RC
+from tests.verify.test_monitor import feed_steady, feed_two_way
 from wftool.errors import UsageError
 from wftool.verify.monitor import StreamMonitor
-from wftool.verify.recording import FRAME_TOPIC, Event, Recorder, replay_recording
+from wftool.verify.recording import FRAME_TOPIC, Event, Recorder, replay_recording, run_metadata
 
 
 class RecordingMonitor(StreamMonitor):
@@ -83,3 +84,26 @@ def test_unfinished_or_foreign_file_is_a_clear_error(tmp_path: Path):
 def test_unwritable_path_is_a_usage_error(tmp_path: Path):
     with pytest.raises(UsageError, match="cannot write the recording"):
         Recorder(tmp_path / "missing-dir" / "run.mcap", None, {}, record_format="json")
+
+
+@pytest.mark.parametrize("record_format", ["ros2", "json"])
+def test_replay_pairs_time_replies_with_the_recorded_commands(tmp_path: Path, record_format: str):
+    """A command event is the packet the live loop sent (seq counting from the connection,
+    stamped with the event's time): a replay pairs the FC's time replies as the run did."""
+    path = tmp_path / "run"
+    metadata = run_metadata("socket://sim:5762", 2_000_000, None, None, "twoway")
+    with Recorder(path, None, metadata, record_format=record_format) as recorder:
+        live = StreamMonitor("socket://sim:5762", clock="twoway")
+
+        def record(kind, t, payload):
+            if kind == "send":
+                recorder.event(Event("command", t, rc=RC))
+            else:
+                recorder.event(Event("bytes", t, payload))
+
+        recorder.event(Event("connected", 0.0))
+        feed_two_way(live, 6.0, record)
+    replayed = replay_recording(path).summary()
+    assert replayed.round_trip is not None and replayed.round_trip.count > 200
+    assert replayed.two_way == live.summary().two_way
+    assert replayed.round_trip == live.summary().round_trip

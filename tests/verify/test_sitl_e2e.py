@@ -120,3 +120,26 @@ def test_sitl_killed_and_restarted_mid_run_is_survived(fsp_fc: VirtualFcSession)
     assert summary.frames > before + 100  # streaming again after the restart
     assert summary.lost_frames == 0 and summary.errors == 0
     assert summary.clock is not None and summary.clock.locked  # re-aligned on the new connection
+
+
+def test_sitl_time_reply_verify_shows_round_trips_and_the_offset_uncertainty(
+    sitl_binary: Path, capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    """`wftool sitl --time-reply`: the FC answers the uplink's commands; verify pairs the
+    replies (none rejected as chunks) and, with the two-way clock it then uses, reports the
+    offset's uncertainty; a recording replays to the same round trips."""
+    recording = tmp_path / "run.mcap"
+    code, live, err = verify_json(
+        capsys, "sitl", "--binary", str(sitl_binary), "--workdir", str(tmp_path / "fc"),
+        "--port-base", str(free_port_base()), "--no-motion", "--time-reply", "--uplink",
+        "--verify", "10", "--record", str(recording),
+    )  # fmt: skip
+    assert code == 0, err
+    assert live["clock_estimator"] == "twoway" and live["errors"] == 0
+    assert live["round_trip"]["count"] >= 0.9 * live["uplink"]["commands_sent"]
+    two_way = live["two_way"]
+    assert two_way["active"] and two_way["uncertainty_s"] > 0
+    assert live["clock"]["uncertainty_s"] == two_way["uncertainty_s"]
+    code, replayed, _ = verify_json(capsys, "replay", str(recording))
+    assert code == 0 and replayed["round_trip"] == live["round_trip"]
+    assert replayed["two_way"] == two_way

@@ -44,6 +44,13 @@ rate_option = click.option(
     help="Feed synthetic IMU motion through SITL's simulator input.",
 )
 @click.option(
+    "--time-reply",
+    is_flag=True,
+    help="The FC answers each command with a time reply (fsp_time_reply = ON; two-way timing, "
+    "spec §10). With --verify: needs --uplink; the OBC times use the replies (--clock twoway) "
+    "unless --clock says otherwise.",
+)
+@click.option(
     "--verify",
     "verify_s",
     type=float,
@@ -66,7 +73,7 @@ rate_option = click.option(
 @run_options
 @criteria_options
 def sitl(
-    binary: Path | None, workdir: Path | None, rate_hz: int, motion: bool,
+    binary: Path | None, workdir: Path | None, rate_hz: int, motion: bool, time_reply: bool,
     verify_s: float | None, port_base: int, project_dir: Path | None, **options: Any,
 ) -> None:  # fmt: skip
     """Run the virtual FC: the patched SITL with FSP on UART2, until Ctrl-C (or --verify).
@@ -79,16 +86,22 @@ def sitl(
 
     if verify_s is not None and not verify_s > 0:
         raise UsageError(f"--verify needs a positive number of seconds, not {verify_s:g}")
+    if verify_s is not None and time_reply:
+        if not options["uplink"]:
+            raise UsageError("--time-reply answers commands: add --uplink to send them")
+        options["clock"] = options["clock"] or "twoway"
     if binary is None:
         binary = build_sitl(project_dir)
     workdir = workdir or Path(tempfile.mkdtemp(prefix="wftool-sitl-"))
     session = VirtualFcSession(
-        binary, workdir, rate_hz=rate_hz, motion=Motion() if motion else None, port_base=port_base
-    )
+        binary, workdir, rate_hz=rate_hz, motion=Motion() if motion else None, port_base=port_base,
+        time_reply=time_reply,
+    )  # fmt: skip
     err.print(f"starting the virtual FC in {workdir} …")
     with session:
         err.print(f"MSP/CLI  [bold]{session.msp_url}[/]")
-        err.print(f"FSP      [bold]{session.fsp_url}[/]  (fsp_rate_hz {rate_hz})")
+        replies = ", fsp_time_reply ON" if time_reply else ""
+        err.print(f"FSP      [bold]{session.fsp_url}[/]  (fsp_rate_hz {rate_hz}{replies})")
         if options["expected_rate"] is None:
             options["expected_rate"] = session.expected_rate_hz
         if verify_s is not None:

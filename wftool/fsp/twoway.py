@@ -151,7 +151,7 @@ class TwoWayClockEstimator:
     WINDOW_S = 10.0
     MAX_ROUND_TRIPS = 256
     MIN_ROUND_TRIPS = 4
-    """Round trips in the window before OBC times use them."""
+    """Round trips in the window before OBC times use them (and the one-way line locked)."""
     TOLERANCE_S = 50e-6
     CONFIRM = 3
 
@@ -211,42 +211,42 @@ class TwoWayClockEstimator:
         if line is None:  # no packet of this FC epoch yet: nothing to measure against
             self.rejected[RoundTripRejection.STALE] += 1
             return
-        rate = line[1]
-        rtt = (obc_received - obc_sent) - rate * (fc_sent_us - fc_received_us) * 1e-6
+        rtt = (obc_received - obc_sent) - line[1] * (fc_sent_us - fc_received_us) * 1e-6
         if obc_received < obc_sent or fc_sent_us < fc_received_us or rtt < 0.0:
             self.rejected[RoundTripRejection.CLOCK_STEP] += 1
             return
         if rtt > self.max_rtt_s:
             self.rejected[RoundTripRejection.TOO_LONG] += 1
             return
-        line_steps = self.one_way.state.reinits
-        if line_steps != self._line_steps:  # the one-way line started over: so do the bounds
+        one_way = self.one_way.state
+        if one_way.reinits != self._line_steps:  # the line started over: so do the bounds
             self._trips.clear()
             self._held.clear()
-            self._line_steps = line_steps
+            self._line_steps = one_way.reinits
         trips = self._trips
         while trips and (
             trips[0].obc_received < obc_received - self.WINDOW_S
             or len(trips) >= self.MAX_ROUND_TRIPS
         ):
             trips.popleft()
-        low, high = self._intersect([trip])
-        window_low, window_high = self._intersect(trips, self.CONFIRM)
+        low, high = self._confirmed(*self._limits([trip], line), 1)
+        window_low, window_high = self._confirmed(*self._limits(trips, line), self.CONFIRM)
         tolerance = self.TOLERANCE_S
-        if trips and (low > window_high + tolerance or high < window_low - tolerance):
-            self._hold(trip)
+        # Until the line is locked its rate may still be off, and bounds with it: no judging.
+        if one_way.locked and (low > window_high + tolerance or high < window_low - tolerance):
+            self._hold(trip, line)
         else:
             self.rejected[RoundTripRejection.INCONSISTENT] += len(self._held)
             self._held.clear()
             trips.append(trip)
             self.accepted += 1
-        self._estimate()
+        self._estimate(line, one_way.locked)
 
-    def _hold(self, trip: RoundTrip) -> None:
+    def _hold(self, trip: RoundTrip, line: tuple[float, float]) -> None:
         held = self._held
         held.append(trip)
         while held:
-            low, high = self._intersect(held)
+            low, high = self._confirmed(*self._limits(held, line), 1)
             if high >= low - self.TOLERANCE_S:
                 break
             held.pop(0)  # the held ones disagree among themselves too: the oldest was wrong
@@ -258,37 +258,43 @@ class TwoWayClockEstimator:
             self._held = []
 
     def _line(self) -> tuple[float, float] | None:
-        """The one-way line E as (E(0), rate), OBC s per FC µs·1e-6; None before data."""
+        """The one-way line E as (E(0) in s, rate); None before data."""
         zero = self.one_way.to_obc(0)
         if zero is None:
             return None
         rate = self.one_way.to_obc(1_000_000) - zero  # type: ignore[operator]
         return zero, rate
 
-    def _intersect(
-        self, trips: deque[RoundTrip] | list[RoundTrip], confirm: int = 1
-    ) -> tuple[float, float]:
-        """[max −b, min a] of `trips` against the current line, each the `confirm`-th best
-        (of fewer trips, the worst); (−inf, inf) for none."""
-        line = self._line()
-        if line is None or not trips:
-            return -math.inf, math.inf
+    @staticmethod
+    def _limits(
+        trips: deque[RoundTrip] | list[RoundTrip], line: tuple[float, float]
+    ) -> tuple[list[float], list[float]]:
+        """Each trip's bounds on d_min against `line`: the −b (lows) and the a (highs)."""
         zero, rate = line
         scale = rate * 1e-6
+        lows = [zero + scale * trip.fc_sent_us - trip.obc_received for trip in trips]
         highs = [zero + scale * trip.fc_received_us - trip.obc_sent for trip in trips]
-        lows = [trip.obc_received - zero - scale * trip.fc_sent_us for trip in trips]
-        rank = min(confirm, len(trips))
-        return -heapq.nsmallest(rank, lows)[-1], heapq.nsmallest(rank, highs)[-1]
+        return lows, highs
 
-    def _estimate(self) -> None:
-        if len(self._trips) < self.MIN_ROUND_TRIPS:
+    @staticmethod
+    def _confirmed(lows: list[float], highs: list[float], confirm: int) -> tuple[float, float]:
+        """[max −b, min a], each the `confirm`-th best (of fewer, the worst); (−inf, inf) for
+        none."""
+        if not lows:
+            return -math.inf, math.inf
+        rank = min(confirm, len(lows))
+        return heapq.nlargest(rank, lows)[-1], heapq.nsmallest(rank, highs)[-1]
+
+    def _estimate(self, line: tuple[float, float], line_locked: bool) -> None:
+        if not line_locked or len(self._trips) < self.MIN_ROUND_TRIPS:
             self._delay = math.nan
             self._bounds = (math.nan, math.nan)
             return
-        low, high = self._intersect(self._trips, self.CONFIRM)
+        lows, highs = self._limits(self._trips, line)
+        low, high = self._confirmed(lows, highs, self.CONFIRM)
         tolerance = self.TOLERANCE_S
         self._outliers = sum(
-            1 for trip in self._trips for one_low, one_high in [self._intersect([trip])]
+            1 for one_low, one_high in zip(lows, highs)
             if one_low > low + tolerance or one_high < high - tolerance
         )  # fmt: skip
         if high < low:  # within the tolerance (else held): the mismatch is the uncertainty

@@ -150,6 +150,32 @@ def _uplink(summary: StreamSummary) -> Text | None:
     )
 
 
+def _two_way(summary: StreamSummary) -> Text | None:
+    """Round trips and the offset's uncertainty, when the FC answers commands (spec §10)."""
+    trip, two_way = summary.round_trip, summary.two_way
+    if trip is None:
+        return None
+    text = (
+        f"[b]two-way[/] round trip P50 {trip.p50_us / 1e3:.3f} ms  P99 {trip.p99_us / 1e3:.3f} ms"
+        f"  ({trip.count:,})"
+    )
+    if two_way is None:
+        text += "   offset ± with --clock twoway"
+    elif two_way.active:
+        low, high = two_way.delay_bounds_s
+        text += (
+            f"   offset ± {_ms(two_way.uncertainty_s, '.3f')}\n"
+            f"  d_min {_ms(two_way.delay_s, '.3f')} (between {_ms(low, '.3f')} and "
+            f"{_ms(high, '.3f')})  steps {two_way.steps}"
+        )
+    else:
+        text += "   offset: acquiring"
+    if summary.round_trip_rejected:
+        unused = "  ".join(f"{cause} {n}" for cause, n in summary.round_trip_rejected.items())
+        text += f"\n  not used: {unused}"
+    return Text.from_markup(text)
+
+
 def _verdict(verdict: Verdict) -> Text:
     text = Text()
     text.append(
@@ -179,9 +205,9 @@ def render(
         Text(),
         *_values(latest),
     ]
-    uplink = _uplink(summary)
-    if uplink is not None:
-        parts += [Text(), uplink]
+    for line in (_uplink(summary), _two_way(summary)):
+        if line is not None:
+            parts += [Text(), line]
     if verdict is not None:
         parts += [Text(), _verdict(verdict)]
     title = f"FSP {summary.port} — {state} — {summary.duration_s:.1f} s — {summary.frames:,} frames"

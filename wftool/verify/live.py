@@ -120,8 +120,8 @@ def run_live(
                         on_packets(packets, t)
                 if period is not None and t >= next_command:
                     rc = pattern_command(command_index, options.uplink_rate_hz)
-                    reader.send_command(rc)
-                    monitor.command_sent(rc, t)
+                    command = reader.send_command(rc, now=t)
+                    monitor.command_sent(rc, t, command)
                     record(Event("command", t, rc=rc))
                     command_index += 1
                     next_command = max(next_command + period, t - period)

@@ -13,9 +13,12 @@ from collections import Counter, deque
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, replace
 
-from wftool.fsp import SensorFrame, StateDecoder, StatePacket, StreamStats
+from wftool.fsp import CommandPacket, SensorFrame, StateDecoder, StatePacket, StreamStats
 from wftool.fsp.clock import ESTIMATORS, ClockState, make_estimator
+from wftool.fsp.encoder import U32_MASK
 from wftool.fsp.framing import Rejection
+from wftool.fsp.packets import SEQ_MODULUS
+from wftool.fsp.twoway import RoundTrip, RoundTripRejection, TwoWayClockEstimator, TwoWayState
 from wftool.verify.uplink import UplinkStats, UplinkTracker
 
 RATE_WINDOW_S = 2.0
@@ -97,6 +100,12 @@ class StreamSummary:
     """The estimator behind `clock` and the frames' OBC times (`wftool.fsp.ESTIMATORS`)."""
     uplink: UplinkStats | None
     connected: bool
+    round_trip: IntervalSummary | None = None
+    """Command → time reply read, in µs, when the FC answers (E2, `fsp_time_reply`)."""
+    round_trip_rejected: dict[str, int] = field(default_factory=dict)
+    """Replies or round trips not used, by cause (`RoundTripRejection`)."""
+    two_way: TwoWayState | None = None
+    """The two-way estimate (offset uncertainty, d_min bounds) with `--clock twoway`."""
 
     @property
     def errors(self) -> int:
@@ -114,12 +123,20 @@ class StreamSummary:
             interval = getattr(self, key)
             if interval is not None:
                 data[key]["spread_us"] = interval.spread_us
-        if data["clock"] is not None:  # NaN (not yet known) is not JSON: null
-            data["clock"] = {
-                k: None if isinstance(v, float) and not math.isfinite(v) else v
-                for k, v in data["clock"].items()
-            }
+        for key in ("clock", "two_way"):  # NaN (not yet known) is not JSON: null
+            if data[key] is not None:
+                data[key] = {k: _finite_or_none(v) for k, v in data[key].items()}
         return data
+
+
+def _finite_or_none(value: object) -> object:
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, tuple):
+        return [_finite_or_none(v) for v in value]
+    if isinstance(value, dict):
+        return {str(getattr(k, "value", k)): v for k, v in value.items()}
+    return value
 
 
 @dataclass
@@ -128,6 +145,8 @@ class _Connection:
     """One per connection: a new connection is a new stream (FC clock, sequence, sync)."""
     opened_at: float
     synced_errors: int | None = None
+    commands: int = 0
+    """Commands sent on this connection."""
 
     def stats(self) -> tuple[StreamStats, int]:
         """The decoder's totals without the chunk cut by joining mid-stream, and that count."""
@@ -167,6 +186,8 @@ class StreamMonitor:
         self._connected_s = 0.0
         self._reconnects = 0
         self._recent: deque[tuple[float, int]] = deque()
+        self.round_trips = IntervalHistogram()
+        self._trips_rejected: Counter[RoundTripRejection] = Counter()  # finished connections
 
     # -- events -----------------------------------------------------------------------------
 
@@ -175,7 +196,10 @@ class StreamMonitor:
             self._started = t
         elif self._connection is None:
             self._reconnects += 1
-        self._connection = _Connection(StateDecoder(self.clock), t)
+        decoder = StateDecoder(self.clock, time_replies=True)  # an FC may answer: spec §10
+        assert decoder.round_trips is not None
+        decoder.round_trips.on_round_trip = self._round_trip
+        self._connection = _Connection(decoder, t)
         self._last_decoder = self._connection.decoder
         self._now = t
 
@@ -187,6 +211,7 @@ class StreamMonitor:
         stats, sync = connection.stats()
         self._closed += stats
         self._closed_sync += sync
+        self._trips_rejected += _trips_rejected(connection.decoder)
         self._connection = None
         self._now = t
 
@@ -223,9 +248,27 @@ class StreamMonitor:
             recent.popleft()
         return packets
 
-    def command_sent(self, rc: Sequence[int], t: float) -> None:
+    def command_sent(
+        self, rc: Sequence[int], t: float, command: CommandPacket | None = None
+    ) -> None:
+        """A command left at OBC time `t`: `command` is the packet (its seq and stamp pair
+        the FC's time reply with it). A replay has no packet: it is the one the live loop sent,
+        from a port opened with the connection (seq counting from 0), stamped with `t`."""
         if self.uplink is not None:
             self.uplink.sent(rc, t)
+        connection = self._connection
+        if connection is None:
+            return
+        if command is None:
+            command = CommandPacket(tuple(rc), connection.commands % SEQ_MODULUS,  # type: ignore[arg-type]
+                                    int(t * 1e6) & U32_MASK)  # fmt: skip
+        connection.commands += 1
+        round_trips = connection.decoder.round_trips
+        assert round_trips is not None
+        round_trips.sent(command.seq, command.tx_time_us, t)
+
+    def _round_trip(self, trip: RoundTrip) -> None:
+        self.round_trips.add(round(trip.rtt_s * 1e6))
 
     # -- results ----------------------------------------------------------------------------
 
@@ -240,6 +283,10 @@ class StreamMonitor:
             connected_s += now - connection.opened_at
         last = self._last_decoder
         fc = self.fc_intervals.summary()
+        trips_rejected = self._trips_rejected.copy()
+        if connection is not None:
+            trips_rejected += _trips_rejected(connection.decoder)
+        clock = last.clock if last is not None else None
         frames = totals.frames
         window = [n for t, n in self._recent if t >= now - RATE_WINDOW_S]
         window_s = min(RATE_WINDOW_S, now - connection.opened_at) if connection else RATE_WINDOW_S
@@ -269,4 +316,17 @@ class StreamMonitor:
             clock_estimator=self.clock,
             uplink=self.uplink.stats() if self.uplink is not None else None,
             connected=connection is not None,
+            round_trip=self.round_trips.summary(),
+            round_trip_rejected={cause.value: n for cause, n in trips_rejected.items() if n},
+            two_way=clock.two_way if isinstance(clock, TwoWayClockEstimator) else None,
         )
+
+
+def _trips_rejected(decoder: StateDecoder) -> Counter[RoundTripRejection]:
+    """What a decoder's round trips did not use: the matcher's and the estimator's counts."""
+    counts: Counter[RoundTripRejection] = Counter()
+    if decoder.round_trips is not None:
+        counts.update(decoder.round_trips.rejected)
+    if isinstance(decoder.clock, TwoWayClockEstimator):
+        counts.update(decoder.clock.rejected)
+    return counts
