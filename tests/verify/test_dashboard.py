@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from rich.console import Console
 
-from tests.verify.test_monitor import feed_steady
+from tests.verify.test_monitor import feed_steady, feed_two_way
 from wftool.verify.criteria import Criteria, judge
 from wftool.verify.dashboard import render
 from wftool.verify.monitor import StreamMonitor
@@ -42,3 +42,17 @@ def test_dashboard_before_any_data():
     text = screen(monitor)
     assert "disconnected" in text and "no frame yet" in text
     assert "FAIL" in text and "✗ frames received: 0" in text
+
+
+def test_dashboard_shows_two_way_timing_when_the_fc_answers():
+    monitor = StreamMonitor("socket://127.0.0.1:5762", clock="twoway")
+    feed_two_way(monitor, 8.0)
+    text = screen(monitor)
+    line = next(line for line in text.splitlines() if "two-way round trip" in line)
+    trip = monitor.summary().round_trip
+    assert f"P50 {trip.p50_us / 1e3:.3f} ms" in line and f"({trip.count:,})" in line
+    assert "offset ± 0." in line and "d_min 0." in text
+    plain = StreamMonitor("socket://127.0.0.1:5762")
+    feed_two_way(plain, 3.0)
+    assert "offset ± with --clock twoway" in screen(plain)
+    assert "two-way" not in screen(StreamMonitor("/dev/ttyTHS1"))  # an FC that does not answer
