@@ -71,7 +71,8 @@ class RoundTripMatcher:
         self.on_round_trip = on_round_trip
         self.matched = 0
         self.rejected: dict[RoundTripRejection, int] = dict.fromkeys(RoundTripRejection, 0)
-        """Replies not paired here (unmatched, duplicate; the decoder counts stale ones)."""
+        """Replies not paired: unmatched and duplicate ones here, stale ones and those
+        answered before received (clock_step) where the decoder places them."""
 
     def sent(self, seq: int, tx_time_us: int, obc_time: float) -> None:
         """A command left with E1 `seq` and `tx_time_us` at OBC time `obc_time` (s)."""
