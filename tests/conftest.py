@@ -27,7 +27,7 @@ from wftool.fc.cli_session import CliSession
 from wftool.fc.msp import MspClient
 from wftool.firmware import BuildOptions, BuildResult, build
 from wftool.firmware.project import Project
-from wftool.sitl.process import VirtualFC, free_port_base
+from wftool.sitl.process import VirtualFC
 
 REPO = Path(__file__).resolve().parent.parent
 BUILD_JOBS = min(os.cpu_count() or 1, 2)
@@ -91,7 +91,7 @@ def firmware_tree(request: pytest.FixtureRequest) -> Path:
 @pytest.fixture
 def virtual_fc(sitl_binary: Path, tmp_path: Path) -> Iterator[VirtualFC]:
     """A freshly started SITL with an empty configuration, stopped after the test."""
-    with VirtualFC(sitl_binary, tmp_path / "sitl", port_base=free_port_base()) as fc:
+    with VirtualFC(sitl_binary, tmp_path / "sitl", port_base=None) as fc:
         yield fc
 
 

@@ -27,7 +27,7 @@ from wftool.firmware.manifest import BuildFlags, Manifest
 from wftool.firmware.project import PROJECT_ENV
 from wftool.flash.flasher import find_manifest, flash_firmware, resolve_firmware
 from wftool.flash.image import load_image
-from wftool.sitl.process import VirtualFC, free_port_base
+from wftool.sitl.process import VirtualFC
 
 
 def _build_of(fc: VirtualFC) -> BuildInfo:
@@ -152,7 +152,7 @@ def test_write_failure_names_the_backup_and_the_next_step(
 def test_no_reboot_flashes_a_board_already_in_dfu(
     sitl_binary: Path, standin_dfu_util: StandinDfuUtil, tmp_path: Path
 ) -> None:
-    fc = VirtualFC(sitl_binary, tmp_path / "sitl", port_base=free_port_base())
+    fc = VirtualFC(sitl_binary, tmp_path / "sitl", port_base=None)
     with fc:
         build = _build_of(fc)
     # The FC sits in its bootloader (SITL not running); flashing starts it again.

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -56,7 +57,7 @@ def wait_for(condition: object, timeout: float) -> bool:
 
 
 def test_start_answers_msp_and_stop_leaves_no_process(sitl_binary: Path, tmp_path: Path) -> None:
-    fc = VirtualFC(sitl_binary, tmp_path, port_base=free_port_base())
+    fc = VirtualFC(sitl_binary, tmp_path, port_base=None)
     with fc:
         assert fc._process is not None
         pid = fc._process.pid
@@ -70,7 +71,7 @@ def test_start_answers_msp_and_stop_leaves_no_process(sitl_binary: Path, tmp_pat
 
 
 def test_stop_kills_a_process_that_ignores_sigterm(sitl_binary: Path, tmp_path: Path) -> None:
-    fc = VirtualFC(sitl_binary, tmp_path, port_base=free_port_base())
+    fc = VirtualFC(sitl_binary, tmp_path, port_base=None)
     fc.start()
     assert fc._process is not None
     pid = fc._process.pid
@@ -92,7 +93,7 @@ def test_wait_back_restarts_after_a_firmware_reset(virtual_fc: VirtualFC) -> Non
 def test_two_virtual_fcs_run_side_by_side(
     virtual_fc: VirtualFC, sitl_binary: Path, tmp_path: Path
 ) -> None:
-    with VirtualFC(sitl_binary, tmp_path / "b", port_base=free_port_base()) as other:
+    with VirtualFC(sitl_binary, tmp_path / "b", port_base=None) as other:
         assert other.port_base != virtual_fc.port_base
         for fc in (virtual_fc, other):
             with MspClient.open(fc.url) as msp:
@@ -122,9 +123,28 @@ def test_a_port_another_program_holds_is_named(
     assert not sitl_pids(base)
 
 
+def test_ports_taken_after_they_were_found_free_are_traded_for_others(
+    sitl_binary: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """`port_base=None`: a program that takes one of the chosen ports before the SITL binds
+    it (a race with another test run) costs a second choice, not a failed start."""
+    import wftool.sitl.process as process
+
+    first, second = free_port_base(), free_port_base(start=60000, stop=64000)
+    choices = iter([first, second])
+    monkeypatch.setattr(process, "free_port_base", lambda: next(choices))
+    with socket.socket() as holder:
+        holder.bind((LOOPBACK, first + 1))
+        holder.listen()
+        with VirtualFC(sitl_binary, tmp_path, port_base=None) as fc:
+            assert fc.port_base == second
+            with MspClient.open(fc.url) as msp:
+                assert msp.pid_cycle_us() > 0
+
+
 def test_missing_binary_is_a_one_line_error(tmp_path: Path) -> None:
     with pytest.raises(SitlError, match="cannot run SITL binary"):
-        VirtualFC(tmp_path / "nope", tmp_path, port_base=free_port_base()).start()
+        VirtualFC(tmp_path / "nope", tmp_path, port_base=None).start()
 
 
 def test_uart_urls_follow_the_port_base() -> None:
@@ -135,26 +155,31 @@ def test_uart_urls_follow_the_port_base() -> None:
 
 @pytest.fixture
 def wftool_sitl(sitl_binary: Path, tmp_path: Path) -> Iterator[tuple[subprocess.Popen, int]]:
-    """`wftool sitl` running in its own process, with the SITL it started up."""
-    base = free_port_base()
+    """`wftool sitl` running in its own process on any free ports, with the SITL it started
+    up and configured: (the wftool process, the port base it took)."""
     process = subprocess.Popen(
         [sys.executable, "-m", "wftool", "sitl", "--binary", str(sitl_binary),
-         "--workdir", str(tmp_path), "--port-base", str(base), "--no-motion"],
+         "--workdir", str(tmp_path), "--port-base", "0", "--no-motion"],
         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
         # as from a terminal: a shell's background job (CI) would start it with SIGINT ignored
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )  # fmt: skip
+    base = 0
     try:
         assert process.stderr is not None
+        said = []
         for line in process.stderr:  # configured and serving: "running; Ctrl-C stops it"
+            said.append(line)
+            if match := re.search(r"MSP/CLI\s+socket://127.0.0.1:(\d+)", line):
+                base = int(match.group(1)) - 1
             if line.startswith("running"):
                 break
-        assert sitl_pids(base)
+        assert base and sitl_pids(base), "".join(said)
         yield process, base
     finally:
         process.kill()
         process.wait()
-        for pid in sitl_pids(base):
+        for pid in sitl_pids(base) if base else []:
             os.kill(pid, signal.SIGKILL)
 
 

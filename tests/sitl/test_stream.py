@@ -24,7 +24,6 @@ from wftool.fc.cli_session import CliSession
 from wftool.fc.msp import MspClient
 from wftool.fsp import FspReader, StatePacket
 from wftool.fsp.schedule import frame_rate_hz, lockstep_interval
-from wftool.sitl.process import free_port_base
 from wftool.sitl.session import Motion, VirtualFcSession
 
 pytestmark = pytest.mark.slow
@@ -79,9 +78,7 @@ def task_rates(output: str) -> dict[str, int]:
 
 @pytest.fixture
 def moving_fc(sitl_binary: Path, tmp_path: Path) -> Iterator[VirtualFcSession]:
-    with VirtualFcSession(
-        sitl_binary, tmp_path, motion=Motion(), port_base=free_port_base()
-    ) as session:
+    with VirtualFcSession(sitl_binary, tmp_path, motion=Motion(), port_base=None) as session:
         yield session
 
 
@@ -148,7 +145,7 @@ def test_frames_are_one_lockstep_interval_apart_with_nothing_dropped(
 def test_msp_is_served_at_the_serial_rate_asked_for(sitl_binary: Path, tmp_path: Path) -> None:
     """The paper's MSP baseline polls at 1 kHz: with serial_update_rate_hz = 1000 the SERIAL
     task, which answers MSP, runs at 1 kHz."""
-    with VirtualFcSession(sitl_binary, tmp_path, port_base=free_port_base()) as fc:
+    with VirtualFcSession(sitl_binary, tmp_path, port_base=None) as fc:
         session = CliSession.open(fc.msp_url)
         session.set("serial_update_rate_hz", "1000")
         session.save()

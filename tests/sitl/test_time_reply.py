@@ -11,7 +11,6 @@ import pytest
 from wftool.fsp import CommandSender, FspReader, StateDecoder
 from wftool.fsp.encoder import encode_command
 from wftool.fsp.twoway import RoundTrip
-from wftool.sitl.process import free_port_base
 from wftool.sitl.session import VirtualFcSession
 
 pytestmark = pytest.mark.slow
@@ -38,14 +37,14 @@ def exchange(session: VirtualFcSession, commands: int, period_s: float = 0.02) -
 
 
 def test_time_reply_is_off_by_default(sitl_binary: Path, tmp_path: Path) -> None:
-    with VirtualFcSession(sitl_binary, tmp_path, port_base=free_port_base()) as session:
+    with VirtualFcSession(sitl_binary, tmp_path, port_base=None) as session:
         decoder = exchange(session, 50)
     assert decoder.stats.packets > 400
     assert decoder.stats.time_replies == 0 and decoder.stats.errors == 0
 
 
 def test_time_reply_answers_every_command_once(sitl_binary: Path, tmp_path: Path) -> None:
-    session = VirtualFcSession(sitl_binary, tmp_path, port_base=free_port_base(), time_reply=True)
+    session = VirtualFcSession(sitl_binary, tmp_path, port_base=None, time_reply=True)
     with session:
         decoder = exchange(session, 100)
     matcher = decoder.round_trips
@@ -58,7 +57,7 @@ def test_time_reply_answers_every_command_once(sitl_binary: Path, tmp_path: Path
 def test_two_commands_in_one_task_run_get_one_reply_for_the_newest(
     sitl_binary: Path, tmp_path: Path
 ) -> None:
-    session = VirtualFcSession(sitl_binary, tmp_path, port_base=free_port_base(), time_reply=True)
+    session = VirtualFcSession(sitl_binary, tmp_path, port_base=None, time_reply=True)
     trips: list[RoundTrip] = []
     with session, FspReader(session.fsp_url, decoder=StateDecoder("twoway")) as reader:
         matcher = reader.decoder.round_trips

@@ -26,9 +26,7 @@ pytestmark = pytest.mark.slow
 
 @pytest.fixture
 def fsp_fc(sitl_binary: Path, tmp_path: Path) -> Iterator[VirtualFcSession]:
-    with VirtualFcSession(
-        sitl_binary, tmp_path / "fc", motion=Motion(), port_base=free_port_base()
-    ) as session:
+    with VirtualFcSession(sitl_binary, tmp_path / "fc", motion=Motion(), port_base=None) as session:
         yield session
 
 

@@ -21,7 +21,6 @@ from pathlib import Path
 from rich.console import Console
 
 from wftool.fsp import StatePacket
-from wftool.sitl.process import free_port_base
 from wftool.sitl.session import VirtualFcSession
 from wftool.verify.dashboard import render
 from wftool.verify.monitor import IntervalSummary, StreamSummary
@@ -74,7 +73,7 @@ def run_stream_bench(binary: Path, rates: Sequence[int], seconds: float) -> Stre
     with tempfile.TemporaryDirectory(prefix="wftool-bench-") as scratch:
         for index, rate in enumerate(rates):
             workdir = Path(scratch) / f"rate-{rate}"
-            with VirtualFcSession(binary, workdir, rate_hz=rate, port_base=free_port_base()) as fc:
+            with VirtualFcSession(binary, workdir, rate_hz=rate, port_base=None) as fc:
                 expected = fc.expected_rate_hz
                 session = VerifySession(fc.fsp_url, duration_s=seconds, expected_rate_hz=expected)
                 latencies: list[float] = []

@@ -59,10 +59,11 @@ rate_option = click.option(
 )
 @click.option(
     "--port-base",
-    type=click.IntRange(1024, 65535 - SIM_PORT_OFFSET - UART_COUNT),
+    type=click.IntRange(0, 65535 - SIM_PORT_OFFSET - UART_COUNT),
     default=DEFAULT_PORT_BASE,
     show_default=True,
-    help=f"UARTn on TCP PORT_BASE+n; simulator UDP at PORT_BASE+{SIM_PORT_OFFSET + 1}...",
+    help=f"UARTn on TCP PORT_BASE+n; simulator UDP at PORT_BASE+{SIM_PORT_OFFSET + 1}... "
+    "0: any free ports.",
 )
 @click.option(
     "--project",
@@ -94,8 +95,8 @@ def sitl(
         binary = build_sitl(project_dir)
     workdir = workdir or Path(tempfile.mkdtemp(prefix="wftool-sitl-"))
     session = VirtualFcSession(
-        binary, workdir, rate_hz=rate_hz, motion=Motion() if motion else None, port_base=port_base,
-        time_reply=time_reply,
+        binary, workdir, rate_hz=rate_hz, motion=Motion() if motion else None,
+        port_base=port_base or None, time_reply=time_reply,
     )  # fmt: skip
     err.print(f"starting the virtual FC in {workdir} …")
     with session:

@@ -80,6 +80,8 @@ class VirtualFC:
     """A SITL binary running in `workdir`, restartable, never left behind.
 
     Use as a context manager, or call `start()`/`stop()`. `url` is UART1 (MSP and CLI).
+    `port_base=None` takes any free port base at the first start (another one if a program
+    takes a port meanwhile) and keeps it across restarts, so clients find the FC again.
     """
 
     def __init__(
@@ -87,18 +89,26 @@ class VirtualFC:
         binary: Path,
         workdir: Path,
         *,
-        port_base: int = DEFAULT_PORT_BASE,
+        port_base: int | None = DEFAULT_PORT_BASE,
         ready_timeout: float = 20.0,
     ) -> None:
         self.binary = Path(binary).resolve()
         self.workdir = Path(workdir)
-        self.port_base = port_base
+        self._fixed_base = port_base is not None
+        self._port_base = port_base
         self.ready_timeout = ready_timeout
         self.log_path = self.workdir / "sitl.log"
         self.starts = 0
         """Successful starts so far (a restart after a reset counts, a retried start not)."""
         self._process: subprocess.Popen[bytes] | None = None
         self._start_offset = 0
+
+    @property
+    def port_base(self) -> int:
+        """The TCP port base (chosen at the first start when none was given)."""
+        if self._port_base is None:
+            raise SitlError("the virtual FC has no port base before it starts")
+        return self._port_base
 
     def uart_url(self, uart: int) -> str:
         return uart_url(uart, self.port_base)
@@ -120,6 +130,18 @@ class VirtualFC:
         """Start the process; return once UART1 has accepted (and released) a connection."""
         if self.running:
             raise SitlError("SITL is already running")
+        for attempt in range(START_ATTEMPTS):
+            if self._port_base is None:
+                self._port_base = free_port_base()
+            try:
+                self._start_on_ports()
+                return
+            except PortInUseError:
+                if self._fixed_base or self.starts or attempt + 1 == START_ATTEMPTS:
+                    raise
+                self._port_base = None  # taken since it was found free: take another
+
+    def _start_on_ports(self) -> None:
         if taken := ports_in_use(self.port_base):
             raise PortInUseError(
                 f"{taken[0]} is in use: another virtual FC (or program) holds it; "

@@ -129,16 +129,18 @@ class VirtualFcSession:
         baud: int = DEFAULT_BAUDRATE,
         rate_hz: int = DEFAULT_RATE_HZ,
         motion: Motion | None = None,
-        port_base: int = DEFAULT_PORT_BASE,
+        port_base: int | None = DEFAULT_PORT_BASE,
         time_reply: bool = False,
     ) -> None:
-        """`time_reply`: the FC answers each command with a time reply (spec §10)."""
+        """`time_reply`: the FC answers each command with a time reply (spec §10);
+        `port_base=None`: any free ports (see `VirtualFC`)."""
         self.fc = VirtualFC(binary, workdir, port_base=port_base)
         self.workdir = workdir
         self._baud = baud
         self.rate_hz = rate_hz
         self.time_reply = time_reply
-        self._feeder = MotionFeeder(motion, self.fc.sim_state_port) if motion else None
+        self._motion = motion
+        self._feeder: MotionFeeder | None = None
 
     @property
     def expected_rate_hz(self) -> float:
@@ -162,7 +164,8 @@ class VirtualFcSession:
                 fsp_planner(FSP_UART, self._baud, self.rate_hz, self.time_reply),
                 self.workdir / "backups",
             )
-            if self._feeder is not None:
+            if self._motion is not None:  # the ports are known once the FC runs
+                self._feeder = MotionFeeder(self._motion, self.fc.sim_state_port)
                 self._feeder.start()
         except BaseException:
             self.fc.stop()
@@ -212,6 +215,7 @@ class VirtualFcSession:
     def stop(self) -> None:
         if self._feeder is not None:
             self._feeder.stop()
+            self._feeder = None
         self.fc.stop()
 
     def __enter__(self) -> VirtualFcSession:
