@@ -57,14 +57,18 @@ def _serve(reads: list[bytes], ready: threading.Event, port: list[int]) -> None:
             connection.recv(1)  # until the reader hangs up
 
 
-def test_verify_records_a_rosbag_and_serves_foxglove(capsys, tmp_path):
-    pytest.importorskip("foxglove")
-    reads = flight(600)
+def play(reads: list[bytes]) -> str:
+    """The URL of a capture player serving `reads` to the first client."""
     ready, port = threading.Event(), []
     threading.Thread(target=_serve, args=(reads, ready, port), daemon=True).start()
     assert ready.wait(5)
+    return f"socket://127.0.0.1:{port[0]}"
+
+
+def test_verify_records_a_rosbag_and_serves_foxglove(capsys, tmp_path):
+    pytest.importorskip("foxglove")
     bag = tmp_path / "flight"
-    code, _, err = run(capsys, "verify", "--stream", "--port", f"socket://127.0.0.1:{port[0]}",
+    code, _, err = run(capsys, "verify", "--stream", "--port", play(flight(600)),
                        "--duration", "2", "--record", str(bag), "--foxglove", "0")  # fmt: skip
     assert code in (0, 1), err  # the verdict is not the point here
     assert "Foxglove  ws://127.0.0.1:" in err
@@ -76,12 +80,8 @@ def test_verify_records_a_rosbag_and_serves_foxglove(capsys, tmp_path):
 
 
 def test_a_mcap_record_path_is_one_ros2_file_and_replays_with_its_clock(capsys, tmp_path):
-    reads = flight(600)
-    ready, port = threading.Event(), []
-    threading.Thread(target=_serve, args=(reads, ready, port), daemon=True).start()
-    assert ready.wait(5)
     single = tmp_path / "run.mcap"
-    code, _, err = run(capsys, "verify", "--stream", "--port", f"socket://127.0.0.1:{port[0]}",
+    code, _, err = run(capsys, "verify", "--stream", "--port", play(flight(600)),
                        "--duration", "2", "--record", str(single), "--clock", "kalman")  # fmt: skip
     assert code in (0, 1), err
     assert single.is_file()  # the MCAP file alone, in the ROS 2 format (the default)

@@ -8,7 +8,7 @@ from typing import Any
 
 import click
 
-from wftool.cli.verify import announce, criteria_options, err, run_options, verify_stream
+from wftool.cli.verify import criteria_options, err, run_options, session_from, verify_stream
 from wftool.errors import UsageError
 from wftool.fsp import DEFAULT_BAUDRATE
 from wftool.fsp.schedule import DEFAULT_RATE_HZ, RATE_HZ_MAX, RATE_HZ_MIN
@@ -122,38 +122,14 @@ def sitl(
                 stream.close()
 
 
-def serving_stream(
-    url: str,
-    *,
-    record_path: Path | None,
-    record_format: str,
-    csv_path: Path | None,
-    foxglove_port: int | None,
-    foxglove_host: str,
-    uplink: bool,
-    uplink_rate: float,
-    clock: str | None,
-    expected_rate: float | None,
-    **_verify_only: Any,
-) -> VerifySession | None:
+def serving_stream(url: str, **options: Any) -> VerifySession | None:
     """The stream reader of a virtual FC served without --verify: it records and serves
     Foxglove if asked (None if not), and judges nothing."""
-    if record_path is None and csv_path is None and foxglove_port is None:
+    if not (options["record_path"] or options["csv_path"] or options["foxglove_port"] is not None):
         return None
-    stream = VerifySession(
-        url,
-        expected_rate_hz=expected_rate,  # kept in the recording, for replay to judge by
-        uplink_rate_hz=uplink_rate if uplink else None,
-        record_path=record_path,
-        csv_path=csv_path,
-        clock=clock,
-        record_format=record_format,
-        foxglove_port=foxglove_port,
-        foxglove_host=foxglove_host,
-    )
-    announce(stream)
-    if record_path is not None:
-        err.print(f"recording to {record_path}")
+    stream = session_from(url, DEFAULT_BAUDRATE, None, **options)
+    if options["record_path"] is not None:
+        err.print(f"recording to {options['record_path']}")
     return stream
 
 

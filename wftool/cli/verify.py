@@ -118,17 +118,12 @@ def _finish(result: VerifyResult, as_json: bool) -> None:
     result.check()
 
 
-def announce(session: VerifySession) -> None:
-    """Say where the live view is served, if it is."""
-    if session.live_view is not None:
-        err.print(f"Foxglove  [bold]{session.live_view.url}[/]")
-
-
-def verify_stream(
+def session_from(
     url: str,
     baud: int,
     duration: float | None,
     *,
+    criteria: Criteria | None = None,
     uplink: bool,
     uplink_rate: float,
     record_path: Path | None,
@@ -137,17 +132,17 @@ def verify_stream(
     foxglove_port: int | None,
     foxglove_host: str,
     expected_rate: float | None,
-    as_json: bool,
     clock: str | None,
-    **criteria_values: Any,
-) -> None:
-    """The live dashboard until the duration is up (or Ctrl-C), then the verdict."""
+    **_others: Any,
+) -> VerifySession:
+    """The session the `run_options` ask for (criteria: the defaults unless given); says
+    where its live view is served."""
     session = VerifySession(
         url,
         baud,
         duration,
-        criteria=criteria_from(uplink, **criteria_values),
-        expected_rate_hz=expected_rate,
+        criteria=criteria,
+        expected_rate_hz=expected_rate,  # also kept in a recording, for replay to judge by
         uplink_rate_hz=uplink_rate if uplink else None,
         record_path=record_path,
         csv_path=csv_path,
@@ -156,7 +151,17 @@ def verify_stream(
         foxglove_port=foxglove_port,
         foxglove_host=foxglove_host,
     )
-    announce(session)
+    if session.live_view is not None:
+        err.print(f"Foxglove  [bold]{session.live_view.url}[/]")
+    return session
+
+
+def verify_stream(
+    url: str, baud: int, duration: float | None, *, as_json: bool, **options: Any
+) -> None:
+    """The live dashboard until the duration is up (or Ctrl-C), then the verdict."""
+    criteria = criteria_from(**options)
+    session = session_from(url, baud, duration, criteria=criteria, **options)
 
     def view(result: VerifyResult) -> Any:
         return render(result.summary, result.latest, result.verdict)
