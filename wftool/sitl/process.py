@@ -66,9 +66,14 @@ def ports_in_use(port_base: int) -> list[str]:
     return taken
 
 
-def free_port_base(start: int = 20000, stop: int = 60000, step: int = 50) -> int:
+def free_port_base(start: int = 20000, stop: int = 32700, step: int = 50) -> int:
     """A port base none of whose ports is in use now, from a pseudo-random start (so that
-    test runs side by side rarely even probe the same one)."""
+    test runs side by side rarely even probe the same one).
+
+    Below Linux's ephemeral range (32768-60999): there any outgoing connection on the
+    machine may be given one of the ports between this check and the SITL's bind, or while
+    the SITL restarts after a save (seen as PortInUseError from `wait_back`).
+    """
     first = start + (os.getpid() * 7919 % ((stop - start) // step)) * step
     for base in [*range(first, stop, step), *range(start, first, step)]:
         if not ports_in_use(base):
