@@ -18,6 +18,7 @@ from wftool.errors import PortInUseError, SitlError
 from wftool.fc.msp import MspClient, RebootMode
 from wftool.sitl.process import (
     LOOPBACK,
+    MAX_PORT_BASE,
     SIM_PORT_OFFSET,
     VirtualFC,
     free_port_base,
@@ -145,6 +146,18 @@ def test_ports_taken_after_they_were_found_free_are_traded_for_others(
 def test_missing_binary_is_a_one_line_error(tmp_path: Path) -> None:
     with pytest.raises(SitlError, match="cannot run SITL binary"):
         VirtualFC(tmp_path / "nope", tmp_path, port_base=None).start()
+
+
+@pytest.mark.parametrize("pid", [1, 4242, 65521, 99991])
+def test_port_bases_are_chosen_where_every_port_exists(
+    pid: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Whatever the pseudo-random start, a base near the top leaves room for the UDP ports
+    (a base of 63700 made `ports_in_use` raise OverflowError); defaults stay below Linux's
+    ephemeral range."""
+    monkeypatch.setattr(os, "getpid", lambda: pid)
+    assert free_port_base(start=60000, stop=65536) <= MAX_PORT_BASE
+    assert free_port_base() < 32768
 
 
 def test_uart_urls_follow_the_port_base() -> None:

@@ -12,7 +12,7 @@ from wftool.cli.verify import criteria_options, err, run_options, session_from, 
 from wftool.errors import UsageError
 from wftool.fsp import DEFAULT_BAUDRATE
 from wftool.fsp.schedule import DEFAULT_RATE_HZ, RATE_HZ_MAX, RATE_HZ_MIN
-from wftool.sitl.process import DEFAULT_PORT_BASE, SIM_PORT_OFFSET, UART_COUNT
+from wftool.sitl.process import DEFAULT_PORT_BASE, MAX_PORT_BASE, SIM_PORT_OFFSET
 from wftool.verify.session import VerifySession
 
 rate_option = click.option(
@@ -59,7 +59,7 @@ rate_option = click.option(
 )
 @click.option(
     "--port-base",
-    type=click.IntRange(0, 65535 - SIM_PORT_OFFSET - UART_COUNT),
+    type=click.IntRange(0, MAX_PORT_BASE),
     default=DEFAULT_PORT_BASE,
     show_default=True,
     help=f"UARTn on TCP PORT_BASE+n; simulator UDP at PORT_BASE+{SIM_PORT_OFFSET + 1}... "

@@ -40,6 +40,8 @@ SIM_PORT_OFFSET = 3240
 SIM_STATE_PORT = 3
 """SITL's simulator state input is UDP sim base + 3 (9003 by default)."""
 UART_COUNT = 8
+MAX_PORT_BASE = 65535 - SIM_PORT_OFFSET - UART_COUNT
+"""The highest port base whose every port (TCP per UART, the simulator's UDP) exists."""
 START_ATTEMPTS = 3
 ACCEPT_TIMEOUT_S = 3.0
 LOOP_TIMEOUT_S = 3.0
@@ -74,6 +76,7 @@ def free_port_base(start: int = 20000, stop: int = 32700, step: int = 50) -> int
     machine may be given one of the ports between this check and the SITL's bind, or while
     the SITL restarts after a save (seen as PortInUseError from `wait_back`).
     """
+    stop = min(stop, MAX_PORT_BASE + 1)
     first = start + (os.getpid() * 7919 % ((stop - start) // step)) * step
     for base in [*range(first, stop, step), *range(start, first, step)]:
         if not ports_in_use(base):
