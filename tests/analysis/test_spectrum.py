@@ -116,7 +116,7 @@ def bad_inputs(tmp_path: Path) -> dict[str, Path]:
     data = good.read_bytes()
     files = {
         "empty": b"",
-        "truncated": data[: len(data) // 2],
+        "cut_in_its_header": data[:20],
         "foreign": b"time,acc\n0,1\n",
         "not_a_series": None,
     }
@@ -144,6 +144,18 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys):
         assert len(stderr.strip().splitlines()) == 1, (name, stderr)
         assert "error:" in stderr and "Traceback" not in stderr
         assert not path.with_suffix(".spectrum.png").exists()
+
+
+def test_a_recording_cut_short_is_analysed_as_far_as_it_goes(tmp_path, capsys):
+    good = tmp_path / "good.mcap"
+    write_recording(good, [(5_000_000, 3000)])
+    data = good.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) * 3 // 4])  # as a killed writer leaves it
+    code, stdout, stderr = run_cli(capsys, "analyze", "spectrum", str(cut))
+    assert code == 0, stderr
+    assert "was not finished" in stdout + stderr and "lost:" in stdout + stderr
+    assert cut.with_suffix(".spectrum.png").exists()
 
 
 def test_missing_extra_is_one_line_and_exit_2(tmp_path, capsys, monkeypatch):

@@ -1,23 +1,34 @@
-"""verify --record (ROS 2), --clock and --foxglove at the click layer: bad input, then runs.
+"""verify and replay at the click layer: bad input, runs that record and serve, signals,
+and recordings that were cut short or are no recordings of ours.
 
-The run reads a synthetic FSP stream served over local TCP (a capture player, not an FC:
-the SITL is not needed to exercise the recording and serving path end to end).
+The runs read a synthetic FSP stream served over local TCP (a capture player, not an FC:
+the SITL is not needed to exercise the recording and serving path end to end); those that
+are signalled run as their own process, as a user starts them.
 """
 
 from __future__ import annotations
 
+import csv
 import json
+import os
+import signal
 import socket
+import subprocess
 import sys
 import threading
 import time
 
 import pytest
+from mcap.reader import make_reader
+from mcap.writer import Writer as McapWriter
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
 from tests.conftest import run_cli as run
+from tests.verify.fake_fc import PACKET_S, FakeFc
 from tests.verify.test_rosbag import flight
+from wftool.verify import mcapfile
+from wftool.verify.recording import Event, Recorder
 
 NO_PORT = "socket://127.0.0.1:9"  # nothing listens: reached only if the checks before pass
 
@@ -92,3 +103,242 @@ def test_a_mcap_record_path_is_one_ros2_file_and_replays_with_its_clock(capsys, 
     code, out, _ = run(capsys, "replay", str(single), "--json")
     replayed = json.loads(out)
     assert (replayed["frames"], replayed["clock_estimator"]) == (counts["/fsp/imu"], "kalman")
+
+
+# -- bad run lengths, a port that never opens, Ctrl-C (issue 14, item 4) ----------------------
+
+
+def wftool(*args: str) -> subprocess.Popen:
+    """`python -m wftool ARGS` in its own process, started as from a terminal (a shell's
+    background job would start it with SIGINT ignored)."""
+    return subprocess.Popen(
+        [sys.executable, "-m", "wftool", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+        text=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize("duration", ["0", "-1", "nan", "inf"])
+def test_a_duration_that_is_no_run_length_is_refused_before_anything_runs(duration, tmp_path):
+    with socket.create_server(("127.0.0.1", 0)) as listener:
+        url = f"socket://127.0.0.1:{listener.getsockname()[1]}"
+        record = tmp_path / "run.mcap"
+        process = wftool("verify", "--stream", "--port", url, "--duration", duration,
+                         "--record", str(record))  # fmt: skip
+        try:
+            out, err = process.communicate(timeout=20)  # nan once meant: run forever
+        finally:
+            process.kill()
+        listener.settimeout(0.1)
+        with pytest.raises(TimeoutError):
+            listener.accept()  # never connected
+    assert (process.returncode, out) == (2, "")
+    assert err == f"error: --duration must be a positive number of seconds, not {duration}\n"
+    assert not record.exists()
+
+
+def test_a_port_that_never_opens_prints_its_error_and_nothing_else(capsys):
+    code, out, err = run(capsys, "verify", "--stream", "--port", NO_PORT, "--duration", "1")
+    assert (code, out) == (2, "")
+    assert err.startswith("error: cannot open socket://127.0.0.1:9") and err.count("\n") == 1
+
+
+def test_the_baud_rate_must_be_positive(capsys):
+    code, out, err = run(capsys, "verify", "--stream", "--port", NO_PORT, "--baud", "0")
+    assert (code, out) == (2, "")
+    assert "Invalid value for '--baud': 0 is not in the range x>=1" in err
+
+
+def test_ctrl_c_ends_an_open_ended_run_with_its_verdict():
+    with FakeFc() as fc:
+        process = wftool("verify", "--stream", "--port", fc.url, "--max-loss", "100")
+        time.sleep(3.0)
+        process.send_signal(signal.SIGINT)
+        out, err = process.communicate(timeout=30)
+    assert process.returncode == 0, err  # the normal end: what it saw passes
+    assert "PASS" in out and "✓ frames received" in out
+
+
+# -- outages (item 1) --------------------------------------------------------------------------
+
+
+def test_an_outage_the_user_allows_passes_and_is_shown(capsys):
+    with FakeFc(connected_s=(1.0,), outages_s=(0.5,)) as fc:
+        code, out, err = run(capsys, "verify", "--stream", "--port", fc.url, "--duration", "3",
+                             "--json", "--max-outage", "3", "--max-loss", "100")  # fmt: skip
+    assert code == 0, err
+    summary = json.loads(out)
+    assert summary["reconnects"] == 1 and summary["lost_packets"] > 0.5 / PACKET_S
+    outage = next(c for c in summary["verdict"]["checks"] if c["name"] == "time disconnected")
+    assert outage["passed"] and outage["value"] == round(summary["outage_s"], 3)
+    assert 0.4 < summary["outage_s"] < 3.0
+
+
+@pytest.mark.parametrize("limit", ["-1", "nan"])
+def test_the_outage_limit_is_a_number_of_seconds(limit, capsys):
+    code, out, err = run(capsys, "verify", "--stream", "--port", NO_PORT, "--max-outage", limit)
+    assert (code, out) == (2, "") and "--max-outage" in err
+
+
+# -- interrupted recordings (item 6) --------------------------------------------------------
+
+
+def recorded(capsys, record, table) -> tuple[int, int, int]:
+    """(frames replayed from the raw bytes, CSV rows, IMU messages) of a finished recording."""
+    with open(record, "rb") as handle:
+        summary = make_reader(handle).get_summary()
+    assert summary is not None, "not finished: no summary"
+    channel = next(c.id for c in summary.channels.values() if c.topic == "/fsp/imu")
+    code, out, err = run(capsys, "replay", str(record), "--json")
+    assert code in (0, 1), err
+    with open(table, newline="") as handle:
+        rows = sum(1 for _ in csv.reader(handle)) - 1
+    return json.loads(out)["frames"], rows, summary.statistics.channel_message_counts[channel]
+
+
+@pytest.mark.parametrize(
+    "sig, code, said",
+    [(signal.SIGINT, 130, "aborted"), (signal.SIGTERM, 143, "terminated (SIGTERM)"),
+     (signal.SIGHUP, 129, "terminated (SIGHUP)")],
+)  # fmt: skip
+def test_a_signal_stops_a_timed_recording_run_cleanly(sig, code, said, capsys, tmp_path):
+    """Ctrl-C in a timed run, SIGTERM and SIGHUP in any: no verdict, the recording finished,
+    and what it holds agrees everywhere."""
+    record, table = tmp_path / "run.mcap", tmp_path / "run.csv"
+    with FakeFc() as fc:
+        process = wftool("verify", "--stream", "--port", fc.url, "--duration", "60",
+                         "--record", str(record), "--csv", str(table))  # fmt: skip
+        time.sleep(3.0)
+        process.send_signal(sig)
+        out, err = process.communicate(timeout=30)
+    assert process.returncode == code, err
+    assert err.splitlines()[-1] == said and "PASS" not in out and "FAIL" not in out
+    frames, rows, imu = recorded(capsys, record, table)
+    assert frames == rows == imu > 1000
+
+
+def test_a_signal_in_the_middle_of_a_chunk_write_loses_nothing(capsys, tmp_path, monkeypatch):
+    """SIGTERM delivered while the recording writes a chunk: it is written whole, the run
+    stops there and the file is finished."""
+    written = mcapfile._TrackedFile.write
+    fired = []
+
+    def write(self, data: bytes) -> int:
+        if len(data) < 10_000 or fired:  # not a chunk
+            return written(self, data)
+        fired.append(len(data))
+        half = len(data) // 2
+        written(self, data[:half])
+        os.kill(os.getpid(), signal.SIGTERM)  # its handler runs right here
+        return half + written(self, data[half:])
+
+    monkeypatch.setattr(mcapfile._TrackedFile, "write", write)
+    record, table = tmp_path / "run.mcap", tmp_path / "run.csv"
+    with FakeFc() as fc:
+        code, _, err = run(capsys, "verify", "--stream", "--port", fc.url, "--duration", "20",
+                           "--record", str(record), "--csv", str(table))  # fmt: skip
+    assert fired and code == 143, err
+    frames, rows, imu = recorded(capsys, record, table)
+    assert frames == rows == imu > 500
+
+
+def size(path) -> int:
+    return path.stat().st_size if path.exists() else 0
+
+
+def test_a_killed_run_leaves_a_recording_replay_reads_as_far_as_it_goes(capsys, tmp_path):
+    record = tmp_path / "run.mcap"
+    with FakeFc() as fc:
+        process = wftool("verify", "--stream", "--port", fc.url, "--duration", "60",
+                         "--record", str(record))  # fmt: skip
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and size(record) < 300_000:  # a few chunks
+            time.sleep(0.1)
+        process.kill()
+        process.communicate(timeout=30)
+    code, out, err = run(capsys, "replay", str(record), "--json")
+    assert code in (0, 1), err
+    replayed = json.loads(out)
+    assert replayed["frames"] > 1000 and replayed["lost_frames"] == 0
+    note = replayed["verdict"]["notes"][-1]
+    assert "run.mcap was not finished" in note and "messages" in note and "lost: " in note
+
+
+@pytest.mark.parametrize("fmt", ["json", "ros2"])
+def test_a_recording_cut_anywhere_is_read_as_far_as_it_goes(fmt, capsys, tmp_path):
+    whole = tmp_path / "whole.mcap"
+    with Recorder(whole, None, {"port": "test"}, record_format=fmt) as recorder:
+        recorder.event(Event("connected", 1.0))
+        for index, data in enumerate(flight(3000)):
+            recorder.event(Event("bytes", 1.0 + index * 0.0057, data))
+        recorder.event(Event("disconnected", 20.0))
+    data = whole.read_bytes()
+    replayed = []
+    for fraction in (0.3, 0.6, 0.9, 0.999):
+        cut = tmp_path / f"cut{fraction}.mcap"
+        cut.write_bytes(data[: int(len(data) * fraction)])
+        code, out, err = run(capsys, "replay", str(cut), "--json")
+        assert code in (0, 1), err
+        replayed.append(json.loads(out))
+        assert "was not finished" in replayed[-1]["verdict"]["notes"][-1]
+    frames = [r["frames"] for r in replayed]
+    assert 0 < frames[0] < frames[1] < frames[2] <= frames[3] <= 6000
+
+
+@pytest.mark.parametrize(
+    "option", [("--record", "run.mcap", "--record-format", "json"), ("--csv", "run.csv")]
+)
+def test_an_existing_recording_is_never_overwritten(option, capsys, tmp_path):
+    taken = tmp_path / option[1]
+    taken.write_text("an earlier run")
+    code, _, err = run(capsys, "verify", "--stream", "--port", NO_PORT,
+                       option[0], str(taken), *option[2:])  # fmt: skip
+    assert taken.read_text() == "an earlier run"
+    assert code == 2 and err == f"error: cannot write the recording: {taken} already exists\n"
+
+
+# -- replay of what is no recording of ours (item 9) --------------------------------------------
+
+
+def crafted(path, events: list[bytes], metadata: dict[str, str] | None = None) -> None:
+    """A well-formed MCAP file with an /fsp/events channel holding `events` as they are."""
+    with open(path, "wb") as handle:
+        writer = McapWriter(handle)
+        writer.start()
+        writer.add_metadata("wftool.verify", metadata or {"port": "test"})
+        schema = writer.register_schema("wftool.verify.Event", "jsonschema", b"{}")
+        channel = writer.register_channel("/fsp/events", "json", schema)
+        for index, event in enumerate(events):
+            writer.add_message(channel, index, event, index)
+        writer.finish()
+
+
+CONNECTED = b'{"kind": "connected", "t": 1.0}'
+DAMAGED = {
+    "bytes before connected": ([b'{"kind": "bytes", "t": 1.0, "data": "AQA="}'], None),
+    "a string time": ([b'{"kind": "connected", "t": "soon"}'], None),
+    "an infinite time": ([b'{"kind": "connected", "t": 1e999}'], None),
+    "a JSON list": ([b"[1, 2, 3]"], None),
+    "no JSON": ([b"{kind: connected"], None),
+    "no kind": ([b'{"t": 1.0}'], None),
+    "data not base64": ([CONNECTED, b'{"kind": "bytes", "t": 1.1, "data": "#!"}'], None),
+    "rc not numbers": ([CONNECTED, b'{"kind": "command", "t": 1.1, "rc": ["a"]}'], None),
+    "a rate not a number": ([CONNECTED], {"expected_rate_hz": "fast"}),
+}
+
+
+@pytest.mark.parametrize("case", DAMAGED)
+def test_unexpected_content_in_a_recording_is_a_one_line_error(case, capsys, tmp_path):
+    path = tmp_path / "odd.mcap"
+    crafted(path, *DAMAGED[case])
+    code, out, err = run(capsys, "replay", str(path))
+    assert (code, out) == (2, "")
+    assert err.startswith(f"error: recording {path} is damaged: ") and err.count("\n") == 1
+
+
+def test_an_empty_or_foreign_file_says_why_it_is_no_recording(capsys, tmp_path):
+    empty, foreign = tmp_path / "empty.mcap", tmp_path / "foreign.mcap"
+    empty.write_bytes(b"")
+    foreign.write_bytes(b"time,acc\n0,1\n")
+    for path, reason in ((empty, "the file is empty"), (foreign, "not an MCAP file")):
+        code, _, err = run(capsys, "replay", str(path))
+        assert (code, err) == (2, f"error: cannot read recording {path}: {reason}\n")

@@ -44,12 +44,16 @@ def reference(
     sizes: Sequence[int] | None,
     times: Sequence[float] | None,
     clock: ClockEstimator | None = None,
+    connections: Sequence[int] = (),
 ) -> tuple[list[StatePacket], StreamStats]:
-    """What StateDecoder makes of `data` fed in reads of `sizes` stamped `times`."""
+    """What StateDecoder makes of `data` fed in reads of `sizes` stamped `times`, resynced
+    before the reads `connections`."""
     decoder = StateDecoder(clock)
     packets: list[StatePacket] = []
     position = 0
     for index, size in enumerate(sizes if sizes is not None else [len(data)]):
+        if index in connections:
+            decoder.resync()
         arrival = times[index] if times is not None else None
         packets += decoder.feed(data[position : position + size], arrival)
         position += size
@@ -82,6 +86,7 @@ def assert_agree(decoded: StateColumns, packets: list[StatePacket], stats: Strea
     assert decoded.tx_time_us.tolist() == [p.tx_time_us for p in packets]
     assert decoded.packet_time_us.tolist() == [p.time_us for p in packets]
     assert decoded.epoch.tolist() == [p.epoch for p in packets]
+    assert decoded.outlier.tolist() == [p.outlier for p in packets]
     assert all(map(same_float, [p.arrival_time for p in packets], decoded.arrival_time.tolist()))
     assert decoded.tunnel.tolist() == [p.tunnel for p in packets]
     if any(p.tunnel for p in packets):
@@ -101,13 +106,17 @@ def small_blocks():
 
 
 def check(
-    data: bytes, sizes: Sequence[int] | None = None, times: Sequence[float] | None = None
+    data: bytes,
+    sizes: Sequence[int] | None = None,
+    times: Sequence[float] | None = None,
+    connections: Sequence[int] = (),
 ) -> StreamStats:
     """Columns agree with StateDecoder, with the normal and the smallest blocks."""
-    packets, stats = reference(data, sizes, times)
-    assert_agree(decode_columns(data, sizes, times), packets, stats)
+    packets, stats = reference(data, sizes, times, connections=connections)
+    assert_agree(decode_columns(data, sizes, times, connections=connections), packets, stats)
     with small_blocks():
-        assert_agree(decode_columns(data, sizes, times), packets, stats)
+        decoded = decode_columns(data, sizes, times, connections=connections)
+        assert_agree(decoded, packets, stats)
     return stats
 
 
@@ -140,13 +149,27 @@ def damage(wire: bytes, harms: list) -> bytes:
 @st.composite
 def steady_streams(draw: st.DrawFn) -> tuple[bytes, list[float]]:
     """A flight as the FC sends it: E1 on or off, lost packets, FC drops, the u32 wrap, and
-    FC reboots; one read per packet, stamped by a clock that sometimes stalls for long."""
+    FC reboots, an old packet sent again or one with a wild time; one read per packet,
+    stamped by a clock that sometimes stalls for long."""
     e1 = draw(st.booleans())
     t_us = draw(st.integers(2**32 - 400_000, 2**32 - 1) | st.integers(0, 2**32 - 1))
     seq, drops, arrival = draw(st.integers(0, 2**24 - 1)), draw(st.integers(0, 2**16 - 1)), 0.0
-    wire, times = b"", []
+    wire, times, sent = b"", [], []
+    events = ["send"] * 8 + ["lose", "drop", "reboot", "stall", "jump", "repeat", "wild"]
     for _ in range(draw(st.integers(1, 60))):
-        event = draw(st.sampled_from(["send"] * 8 + ["lose", "drop", "reboot", "stall", "jump"]))
+        event = draw(st.sampled_from(events))
+        if event == "repeat" and sent:
+            wire += draw(st.sampled_from(sent[-20:]))
+            times.append(arrival)
+            continue
+        if event == "wild":  # a time that passed the CRC by chance
+            near = st.integers(-3000, 1_500_000)  # within a second, as a steady step
+            wild = draw(st.integers(0, 2**32 - 1) | near.map(t_us.__add__))
+            frames = (frame(wild), frame(wild + PERIOD))
+            wire += encode_state(StatePacket(wild % 2**32, frames, seq, e1, drops))
+            times.append(arrival)
+            t_us, seq, arrival = t_us + 2 * PERIOD, (seq + 1) % 2**24, arrival + 2 * PERIOD * 1e-6
+            continue
         if event == "jump":  # seq skips; by half its range or more, a repeat, not a loss
             seq = (seq + draw(st.sampled_from([2**23 - 1, 2**23, 2**23 + 1, 2**24 - 1]))) % 2**24
         elif event == "reboot":
@@ -159,7 +182,8 @@ def steady_streams(draw: st.DrawFn) -> tuple[bytes, list[float]]:
         first, second = frame(t_us), frame(t_us + PERIOD)
         packet = StatePacket((t_us + PERIOD + 50) % 2**32, (first, second), seq, e1, drops)
         if event != "lose":
-            wire += encode_state(packet)
+            sent.append(encode_state(packet))
+            wire += sent[-1]
             times.append(arrival)
         t_us, seq, arrival = t_us + 2 * PERIOD, (seq + 1) % 2**24, arrival + 2 * PERIOD * 1e-6
     return wire, times
@@ -206,6 +230,21 @@ def test_any_packets_any_reads(wire: bytes, data: st.DataObject) -> None:
 def test_corrupted_streams(wire: bytes, harms: list, garbage: bytes, data: st.DataObject) -> None:
     stream = garbage + damage(wire, harms)
     check(stream, *data.draw(reads(stream)))
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.lists(state_packets, max_size=20).map(lambda ps: b"".join(map(encode_state, ps))),
+    st.lists(corruption, max_size=4),
+    st.data(),
+)
+def test_reconnects_cut_the_chunk_across(wire: bytes, harms: list, data: st.DataObject) -> None:
+    """A connection that breaks off mid-chunk, and one that starts mid-chunk: the cut
+    chunks are dropped (or rejected, if too long already) as `StateDecoder.resync` does."""
+    stream = damage(wire, harms)
+    sizes, times = data.draw(reads(stream))
+    connections = data.draw(st.lists(st.integers(1, max(1, len(sizes) - 1)), max_size=5))
+    check(stream, sizes, times, [c for c in connections if c < len(sizes)])
 
 
 @settings(max_examples=200, deadline=None)
@@ -282,26 +321,26 @@ def test_any_clock_estimator_is_told_what_state_decoder_tells_it(flight) -> None
 
 
 def test_recording_round_trip(tmp_path: Path) -> None:
-    """A recorded run decodes, connection by connection, to what its live decoders saw, and
-    to the frames the recording itself carries (read back with the mcap library)."""
+    """A recorded run decodes, across its reconnect, to what its live decoder saw, and to
+    the frames the recording itself carries (read back with the mcap library)."""
     mcap = tmp_path / "run.mcap"
     record_two_connections(mcap, None, reboot=True)
     decoded = recording_columns(mcap)
-    assert [len(c) for c in decoded] == [600, 300]
-    assert decoded[1].stats.resets == 1 and decoded[1].stats.errors == 1
+    assert len(decoded) == 900
+    assert decoded.stats.resets == 1 and decoded.stats.errors == 1
     with open(mcap, "rb") as handle:
         reader = make_reader(handle)
         events = [json.loads(m.data) for _, _, m in reader.iter_messages(topics=["/fsp/events"])]
-    connections: list[list[dict]] = []
+    chunks, times, connections = [], [], []
     for event in events:
-        if event["kind"] == "connected":
-            connections.append([])
+        if event["kind"] == "connected" and chunks:
+            connections.append(len(chunks))
         elif event["kind"] == "bytes":
-            connections[-1].append(event)
-    for connection, columns_of_run in zip(connections, decoded, strict=True):
-        chunks = [base64.b64decode(e["data"]) for e in connection]
-        times = [e["t"] for e in connection]
-        assert_agree(columns_of_run, *reference(b"".join(chunks), list(map(len, chunks)), times))
+            chunks.append(base64.b64decode(event["data"]))
+            times.append(event["t"])
+    assert connections == [30]  # 300 packets in reads of 10
+    sizes = list(map(len, chunks))
+    assert_agree(decoded, *reference(b"".join(chunks), sizes, times, connections=connections))
 
     with open(mcap, "rb") as handle:  # in written order: log times are OBC times, and
         recorded = [  # the estimator's early ones may step back as its line settles
@@ -310,16 +349,12 @@ def test_recording_round_trip(tmp_path: Path) -> None:
                 topics=[FRAME_TOPIC], log_time_order=False
             )
         ]
-    joined = {
-        key: np.concatenate([getattr(c, key) for c in decoded])
-        for key in ("time_us", "sample_time_us", "acc", "rpm")
-    }
-    assert joined["time_us"].tolist() == [m["fc_time_us"] for m in recorded]
-    assert joined["sample_time_us"].tolist() == [m["sample_time_us"] for m in recorded]
-    assert joined["acc"].tolist() == [m["acc_raw"] for m in recorded]
-    assert joined["rpm"].tolist() == [m["rpm"] for m in recorded]
-    seqs = [s for c in decoded for s in np.repeat(c.seq, 2).tolist()]
-    assert seqs == [m["seq"] for m in recorded]
+    assert decoded.time_us.tolist() == [m["fc_time_us"] for m in recorded]
+    assert decoded.sample_time_us.tolist() == [m["sample_time_us"] for m in recorded]
+    assert decoded.acc.tolist() == [m["acc_raw"] for m in recorded]
+    assert decoded.rpm.tolist() == [m["rpm"] for m in recorded]
+    assert np.repeat(decoded.seq, 2).tolist() == [m["seq"] for m in recorded]
+    assert np.repeat(decoded.epoch, 2).tolist() == [m["epoch"] for m in recorded]
 
 
 def test_bytes_outside_a_connection_is_a_damaged_recording(tmp_path: Path) -> None:

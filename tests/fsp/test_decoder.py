@@ -32,6 +32,23 @@ def stream(indices, *, e1: bool, drops=lambda i: 0) -> bytes:
     return out
 
 
+def packet_at(
+    seq: int, t_us: int, period: int = PERIOD, *, e1: bool = True, drops: int = 0
+) -> bytes:
+    """Wire bytes of the E1 packet numbered `seq` whose first frame was captured at `t_us`."""
+    frames = (frame(t_us), frame(t_us + period))
+    tx_us = (t_us + period + 100) % 2**32
+    return encode_state(StatePacket(tx_us, frames, seq % 2**24, e1, drops % 2**16))
+
+
+def feed_each(decoder: StateDecoder, wire: list[bytes], timed: bool) -> list[StatePacket]:
+    """Feed one packet per read, arriving in real time if `timed`."""
+    packets = []
+    for index, data in enumerate(wire):
+        packets += decoder.feed(data, 100.0 + index * 2 * PERIOD * 1e-6 if timed else None)
+    return packets
+
+
 def test_e1_separates_transport_loss_from_fc_drops():
     decoder = StateDecoder()
     kept = [i for i in range(100) if i not in (10, 11, 50)]
@@ -60,6 +77,56 @@ def test_seq_repeat_is_not_counted_as_loss():
     decoder = StateDecoder()
     decoder.feed(stream([0, 1, 2, 2, 3], e1=True))
     assert decoder.stats.lost_packets == 0
+
+
+@pytest.mark.parametrize("period", [PERIOD, 125])  # fsp_rate_hz 1049 and 8000
+def test_a_reboot_after_half_the_counter_is_a_reset_without_arrival_times(period: int):
+    """Up for 2^31 µs + 10 s (35.8 min), then rebooted: modulo 2^32 the new clock looks a
+    step ahead, a wrap. Only E1 `seq`, starting over and going on from there, says otherwise."""
+    uptime = 2**31 + 10_000_000
+    seq = uptime // (2 * period)  # > 2^23 at 8 kHz: the gap back to 0 looks like a loss
+    before = [packet_at(seq + i, uptime + 2 * i * period, period) for i in range(100)]
+    after = [packet_at(i, 1_500_000 + 2 * i * period, period) for i in range(100)]
+    decoder = StateDecoder()
+    packets = decoder.feed(b"".join(before + after[:1]))  # the reboot, last in its read
+    packets += decoder.feed(b"".join(after[1:]))
+    stats = decoder.stats
+    assert (stats.resets, stats.wraps, stats.lost_packets) == (1, 0, 0)
+    assert [p.epoch for p in packets] == [0] * 100 + [1] * 100
+    assert packets[100].frames[0].time_us == 1_500_000
+    assert stats.outliers == 0 and not any(p.outlier for p in packets)
+
+
+@pytest.mark.parametrize("timed", [False, True])
+def test_one_repeated_old_packet_is_an_outlier_not_a_reset(timed: bool):
+    wire = [packet_at(i, 1_000_000 + 2 * i * PERIOD) for i in range(1000)]
+    wire.insert(901, wire[500])  # packet 500 again, after packet 900
+    decoder = StateDecoder()
+    packets = feed_each(decoder, wire, timed)
+    stats = decoder.stats
+    assert (stats.resets, stats.wraps, stats.lost_packets) == (0, 0, 0)
+    assert {p.epoch for p in packets} == {0}
+    assert [p.frames[0].time_us for p in packets[902:904]] == [
+        1_000_000 + 2 * i * PERIOD for i in (901, 902)
+    ]
+    assert stats.outliers == 1 and [i for i, p in enumerate(packets) if p.outlier] == [901]
+
+
+@pytest.mark.parametrize("timed", [False, True])
+@pytest.mark.parametrize("wild_us", [3_000_000_000, 1_000_000 + 2 * 500 * PERIOD + 400_000, 5])
+def test_a_wild_sample_time_that_passed_the_crc_is_an_outlier(timed: bool, wild_us: int):
+    """Far off, 0.4 s ahead (a steady step, but not with the seq it carries), or behind."""
+    wire = [packet_at(i, 1_000_000 + 2 * i * PERIOD) for i in range(1000)]
+    wire[500] = packet_at(500, wild_us)
+    decoder = StateDecoder()
+    packets = feed_each(decoder, wire, timed)
+    stats = decoder.stats
+    assert (stats.resets, stats.wraps) == (0, 0)
+    assert {p.epoch for p in packets} == {0}
+    assert (stats.lost_packets, stats.lost_frames) == (1, 2)  # its frames are not in the books
+    if timed:  # the clock was not misled: every booked frame on one line
+        assert decoder.clock_state.steps == 0
+    assert stats.outliers == 1 and [i for i, p in enumerate(packets) if p.outlier] == [500]
 
 
 def test_frame_times_unwrap_inside_a_packet_straddling_the_wrap():

@@ -111,9 +111,9 @@ def test_uplink_echo_is_matched_with_round_trip_time():
         while sent and sent[0][0] <= t - 0.015:
             echo_roll = sent.pop(0)[1]
         rc_frame = (echo_roll, 1500, 1500, 1000, 1000, 1000)
-        base = 1_000_000 + i * 20_000
+        base = 1_000_000 + i * 20_000  # a frame every 10 ms, a packet every 20 ms
         packet = StatePacket(
-            base + 1000, (frame(base, rc=rc_frame), frame(base + 953, rc=rc_frame)), i, True
+            base + 10_500, (frame(base, rc=rc_frame), frame(base + 10_000, rc=rc_frame)), i, True
         )
         monitor.feed(encode_state(packet), t + 0.0001)
     uplink = monitor.summary().uplink

@@ -1,4 +1,5 @@
-"""The verify API over a real TCP connection: a run, its verdict, its recording replayed."""
+"""The verify API over a real TCP connection: a run, its verdict, its recording replayed;
+faults on the line from a stand-in FC (`fake_fc`): outages, damage, loss."""
 
 from __future__ import annotations
 
@@ -10,11 +11,14 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from cobs import cobs
 
 from tests.conftest import run_cli
-from tests.fsp.test_decoder import stream
+from tests.fsp.test_decoder import PERIOD, packet_at, stream
+from tests.verify.fake_fc import FRAME_RATE_HZ, PACKET_S, FakeFc, intact
 from wftool.errors import UsageError, VerificationFailed
-from wftool.verify.criteria import RATE_UNCHECKED, Criteria
+from wftool.fsp.framing import encode_frame
+from wftool.verify.criteria import RATE_UNCHECKED, Criteria, judge
 from wftool.verify.session import VerifySession, criteria_for, replay
 
 
@@ -116,3 +120,68 @@ def test_the_clock_estimator_is_chosen_by_name_recorded_and_replayed(
 def test_an_unknown_clock_estimator_is_refused_before_the_run() -> None:
     with pytest.raises(UsageError, match="unknown clock estimator 'best'"):
         VerifySession("socket://127.0.0.1:1", duration_s=1.0, clock="best")
+
+
+# -- faults on the line: outages, damage at each start, loss -----------------------------------
+
+
+def test_an_outage_is_counted_as_loss_and_fails_the_run_unless_allowed() -> None:
+    """Connected 1.5 s, gone 1 s, twice, then connected to the end. What the FC sent
+    meanwhile is lost and E1 `seq` says exactly how much; the rate is over the whole run;
+    the time disconnected fails the run unless the user allows it."""
+    received: list[int] = []
+    with FakeFc(connected_s=(1.5, 1.5), outages_s=(1.0, 1.0)) as fc:
+        session = VerifySession(fc.url, duration_s=8.0, expected_rate_hz=FRAME_RATE_HZ)
+        result = session.run(on_packets=lambda packets, t: received.extend(p.seq for p in packets))
+    summary = result.summary
+    assert fc.connections == 3 and summary.reconnects == 2
+    missing = received[-1] - received[0] + 1 - len(received)
+    assert (summary.lost_packets, summary.lost_frames) == (missing, 2 * missing)
+    assert summary.frame_rate_hz < 0.7 * FRAME_RATE_HZ  # frames over the whole run
+    assert summary.resets == 0 and summary.errors == 0 and summary.sync_rejected == 0
+    assert 2.0 < summary.outage_s < 5.0  # the outages, and the reconnects' backoff
+    assert missing > 0.9 * summary.outage_s / PACKET_S
+    failed = {check.name for check in result.verdict.checks if not check.passed}
+    assert failed == {"time disconnected", "transport loss", "frame rate"}
+
+    allowed = criteria_for(max_outage_s=5.0, max_loss_pct=100.0, min_rate_hz=100.0)
+    assert judge(summary, allowed).passed
+
+
+def crc_damaged(index: int) -> bytes:
+    """Packet `index` of the steady stream, its CRC byte wrong (the COBS framing intact)."""
+    payload = cobs.decode(intact(index)[:-1])
+    return encode_frame(payload[:-1] + bytes([payload[-1] ^ 0x5A]))
+
+
+def test_a_crc_error_at_the_start_of_each_connection_is_an_error() -> None:
+    """Each connection starts on a packet boundary: its first chunk decodes, and the damaged
+    one after it is no chunk cut by joining mid-stream."""
+    second_damaged = lambda index, nth: crc_damaged(index) if nth == 1 else intact(index)  # noqa: E731
+    with FakeFc(second_damaged, connected_s=(1.0, 1.0), outages_s=(0.3, 0.3)) as fc:
+        result = VerifySession(fc.url, duration_s=3.8).run()
+    summary = result.summary
+    assert fc.connections == 3 and summary.reconnects == 2
+    assert summary.rejected["crc"] == 3 and summary.sync_rejected == 0
+    failed = {check.name for check in result.verdict.checks if not check.passed}
+    assert failed == {"rejected chunks", "transport loss", "time disconnected"}
+
+
+def test_transport_loss_and_fc_drops_are_no_fc_jitter() -> None:
+    """One packet in 30 lost, one frame in 70 dropped by the FC: the FC sampled every 953 µs
+    all along, and that is what the intervals show; the loss and the drops are counted."""
+
+    def wire(index: int, _nth: int) -> bytes | None:
+        drops = index // 35  # a frame dropped before every 35th packet
+        t_us = 1_000_000 + (2 * index + drops) * PERIOD
+        return None if index % 30 == 7 else packet_at(index, t_us, drops=drops)
+
+    with FakeFc(wire) as fc:
+        result = VerifySession(fc.url, duration_s=3.0, expected_rate_hz=FRAME_RATE_HZ).run()
+    summary = result.summary
+    assert summary.lost_packets > 20 and summary.fc_drops > 20
+    interval = summary.fc_interval
+    assert (interval.p1_us, interval.p50_us, interval.p99_us, interval.mean_us) == (953,) * 4
+    assert summary.source_rate_hz == pytest.approx(FRAME_RATE_HZ)
+    checks = {check.name: check.passed for check in result.verdict.checks}
+    assert checks["FC interval spread"] and not checks["transport loss"]

@@ -54,7 +54,7 @@ def test_stream_passes_with_no_errors_no_loss_and_replays_identically(
     checks = {check["name"]: check for check in live["verdict"]["checks"]}
     assert checks["frame rate"]["passed"] and checks["FC interval spread"]["passed"]
     assert live["fc_drops"] == 0
-    assert live["rejected"] == {"cobs": 0, "length": 0, "version": 0, "crc": 0}
+    assert live["rejected"] == {"cobs": 0, "length": 0, "version": 0, "crc": 0, "outlier": 0}
     assert (live["lost_frames"], live["lost_packets"], live["e1"]) == (0, 0, True)
     assert live["frames"] > 500
     # the rate the OBC received is the rate the FC captured at

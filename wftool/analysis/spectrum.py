@@ -158,22 +158,22 @@ def _read_npz(path: Path) -> AccSeries:
 
 def _read_recording(path: Path) -> AccSeries:
     """The recording's frames, decoded from its raw bytes by the columnar decoder."""
-    from wftool.verify.recording import recording_columns
+    from wftool.verify.recording import RecordingReader, recording_columns
 
-    connections = [c for c in recording_columns(path) if len(c)]
-    if not connections:
+    recording = RecordingReader(path)
+    run = recording_columns(recording)
+    booked = np.repeat(~run.outlier, 2)  # an outlier's time is no sample time
+    if not booked.any():
         raise UsageError(f"{path} holds no FSP frames")
-    # Each connection is a stream of its own: its epochs follow the previous connection's.
-    epochs, offset = [], 0
-    for columns in connections:
-        epochs.append(np.repeat(columns.epoch, 2) + offset)
-        offset = int(epochs[-1][-1]) + 1
-    acc_g = np.concatenate([c.acc_g for c in connections])
+    acc_g = run.acc_g[booked]
     if np.isnan(acc_g).all():
         raise UsageError(f"{path}: the FSP frames carry no acceleration (acc_1g is 0)")
-    time_s = np.concatenate([c.time_us for c in connections]) * 1e-6
-    motors = np.concatenate([c.rpm for c in connections]) / 60.0
-    return _continuous(str(path), np.concatenate(epochs), time_s, acc_g, motors)
+    time_s = run.time_us[booked] * 1e-6
+    motors = run.rpm[booked] / 60.0
+    series = _continuous(str(path), np.repeat(run.epoch, 2)[booked], time_s, acc_g, motors)
+    if recording.cut is not None:
+        series.notes.append(f"the recording was {recording.cut.describe()}")
+    return series
 
 
 def _continuous(

@@ -16,6 +16,7 @@ from rich.markup import escape
 from wftool import __version__
 from wftool.cli import analyze, bench, build, fc, sitl, verify
 from wftool.errors import EXIT_USAGE, Terminated, WftoolError
+from wftool.interrupts import raise_for
 
 err_console = Console(stderr=True, highlight=False)
 
@@ -32,7 +33,7 @@ for _module in (build, fc, verify, sitl, bench, analyze):
 
 
 def _terminate(signum: int, _frame: object) -> None:
-    raise Terminated(signum)
+    raise_for(signum)
 
 
 def main(argv: list[str] | None = None) -> None:

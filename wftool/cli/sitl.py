@@ -13,6 +13,7 @@ from wftool.errors import UsageError
 from wftool.fsp import DEFAULT_BAUDRATE
 from wftool.fsp.schedule import DEFAULT_RATE_HZ, RATE_HZ_MAX, RATE_HZ_MIN
 from wftool.sitl.process import DEFAULT_PORT_BASE, MAX_PORT_BASE, SIM_PORT_OFFSET
+from wftool.verify.live import check_duration
 from wftool.verify.session import VerifySession
 
 rate_option = click.option(
@@ -85,8 +86,7 @@ def sitl(
     """
     from wftool.sitl.session import Motion, VirtualFcSession
 
-    if verify_s is not None and not verify_s > 0:
-        raise UsageError(f"--verify needs a positive number of seconds, not {verify_s:g}")
+    check_duration(verify_s, "--verify")
     if verify_s is not None and time_reply:
         if not options["uplink"]:
             raise UsageError("--time-reply answers commands: add --uplink to send them")

@@ -4,6 +4,7 @@ and judges; this module parses options and renders the dashboard."""
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -19,6 +20,7 @@ from wftool.verify.criteria import Criteria
 from wftool.verify.dashboard import render
 from wftool.verify.foxglove import DEFAULT_HOST as FOXGLOVE_HOST
 from wftool.verify.foxglove import DEFAULT_PORT as FOXGLOVE_PORT
+from wftool.verify.live import check_duration
 from wftool.verify.recording import RECORD_FORMATS
 from wftool.verify.session import (
     VerifyResult,
@@ -40,6 +42,16 @@ def _options(*options: Callable) -> Callable:
     return decorate
 
 
+def _duration(_ctx: click.Context, param: click.Parameter, value: float | None) -> float | None:
+    return check_duration(value, param.opts[0])
+
+
+def _limit(_ctx: click.Context, param: click.Parameter, value: float) -> float:
+    if math.isnan(value):
+        raise UsageError(f"{param.opts[0]} must be a number, not nan")
+    return value
+
+
 criteria_options = _options(
     click.option("--expected-rate", type=float, help="Frame rate the FC should stream (Hz)."),
     click.option("--min-rate", type=float, help="Minimum frame rate [95 % of expected]."),
@@ -49,8 +61,13 @@ criteria_options = _options(
     click.option("--max-fc-drops", type=float,
                  help="Max frames the FC dropped (queue full), % of frames "
                  f"[{Criteria.max_drops_pct:g}]."),
-    click.option("--max-errors", type=int, default=Criteria.max_errors, show_default=True,
-                 help="Max rejected chunks (COBS, length, version, CRC)."),
+    click.option("--max-errors", type=click.IntRange(0), default=Criteria.max_errors,
+                 show_default=True,
+                 help="Max rejected chunks (COBS, length, version, CRC) and outlier packets."),
+    click.option("--max-outage", type=click.FloatRange(0), default=Criteria.max_outage_s,
+                 show_default=True, metavar="SECONDS", callback=_limit,
+                 help="Max time the port may be gone during the run, all outages together "
+                 "(0: a reconnect fails the run)."),
     click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout."),
     click.option("--clock", type=click.Choice(ESTIMATORS),
                  help=f"Clock estimator for the OBC times: {ESTIMATORS[0]} (lower envelope), "
@@ -108,6 +125,7 @@ def criteria_from(uplink: bool, **options: Any) -> Criteria:
         max_loss_pct=options["max_loss"],
         max_drops_pct=options["max_fc_drops"],
         max_errors=options["max_errors"],
+        max_outage_s=options["max_outage"],
     )
 
 
@@ -167,25 +185,31 @@ def verify_stream(
         return render(result.summary, result.latest, result.verdict)
 
     console = Console(stderr=as_json)
+    # Transient: a run that never started (the port would not open) leaves nothing on the
+    # screen but its error; a finished one prints its last dashboard below.
     try:
-        with Live(view(session.result()), console=console, refresh_per_second=4) as live:
+        with Live(
+            view(session.result()), console=console, refresh_per_second=4, transient=True
+        ) as live:
             try:
                 result = session.run(on_refresh=lambda s: live.update(view(session.result(s))))
-            except KeyboardInterrupt:  # the normal end of an open-ended run
-                result = session.result()
-            live.update(view(result))
+            except KeyboardInterrupt:
+                if duration is not None:
+                    raise  # a timed run cut short: no verdict, exit 130
+                result = session.result()  # the normal end of an open-ended run
     finally:
         session.close()
-    if not console.is_terminal:
-        console.line()  # rich leaves a non-terminal's last line open
+    console.print(view(result))
     _finish(result, as_json)
 
 
 @click.command("verify")
 @click.option("--stream", is_flag=True, help="Verify the FSP stream (the one check so far).")
 @click.option("--port", "url", required=True, help="Serial device or pyserial URL (socket://…).")
-@click.option("--baud", type=int, default=DEFAULT_BAUDRATE, show_default=True)
-@click.option("--duration", type=float, help="Seconds to run [until Ctrl-C].")
+@click.option("--baud", type=click.IntRange(1), default=DEFAULT_BAUDRATE, show_default=True)
+@click.option("--duration", type=float, callback=_duration, metavar="SECONDS",
+              help="Seconds to run, then the verdict (Ctrl-C: stop, exit 130) [until Ctrl-C, "
+              "then the verdict].")  # fmt: skip
 @run_options
 @expected_rate_options
 @criteria_options

@@ -38,7 +38,9 @@ class FcClock:
     A reading that is "behind" the previous one is a wrap when the OBC clock says enough time
     passed, and a reset (FC reboot) when the FC clock would have to have run faster than the
     OBC clock to get there. Without OBC times, a backwards step of more than half the
-    counter's range is a reset and anything else is forward.
+    counter's range is a reset and anything else is forward. A step that is not steady is a
+    reset, too, when the caller knows the stream started over (`restarted`, from E1: see
+    `decoder.restarted`): after more than 2^31 µs of uptime a reboot looks like a step ahead.
     """
 
     def __init__(self) -> None:
@@ -48,7 +50,9 @@ class FcClock:
         self.wraps = 0
         self.resets = 0
 
-    def unwrap(self, raw_us: int, obc_time: float | None = None) -> tuple[int, bool]:
+    def unwrap(
+        self, raw_us: int, obc_time: float | None = None, *, restarted: bool = False
+    ) -> tuple[int, bool]:
         """(64-bit time of `raw_us`, whether a reset happened just before it)."""
         last_raw, last_obc = self._last_raw, self._last_obc
         self._last_raw, self._last_obc = raw_us, obc_time
@@ -63,7 +67,9 @@ class FcClock:
                 self.wraps += 1
             self._last_time_us = time_us
             return time_us, False
-        if obc_time is None or last_obc is None:
+        if restarted:
+            advance = None
+        elif obc_time is None or last_obc is None:
             advance = delta if delta < _HALF_U32 else None
         else:
             elapsed_us = max(0.0, obc_time - last_obc) * 1e6

@@ -15,7 +15,9 @@ costs speed, never exactness. The version bytes and the CRC (`crc.crc8_check_wor
 checked over all rows at once, and the accepted rows are viewed as a structured dtype
 derived from the layouts in `packets`. FC times are unwrapped with cumulative sums; the
 steps `FcClock` would have to think about (gaps, jumps, reboots) are put to an `FcClock`.
-OBC times come from the same `ClockEstimator` as `StateDecoder`'s, one packet at a time.
+Where a packet does not follow the one before it, the decoder's walk that tells outliers from
+what comes next is repeated one packet at a time (`decoder.follows`). OBC times come from
+the same `ClockEstimator` as `StateDecoder`'s, one packet at a time.
 
 NumPy is an optional dependency: `pip install 'wftool[analysis]'`.
 """
@@ -33,7 +35,14 @@ from cobs import cobs
 from wftool.extras import require
 from wftool.fsp.clock import STEADY_GAP_S, STEADY_STEP_US, U32, ClockEstimator, FcClock
 from wftool.fsp.crc import crc8_check_words
-from wftool.fsp.decoder import StateDecoder, StreamStats
+from wftool.fsp.decoder import (
+    JITTER_US,
+    Reading,
+    StateDecoder,
+    StreamStats,
+    follows,
+    restarted,
+)
 from wftool.fsp.framing import STATE_VERSIONS, Rejection, longest_chunk
 from wftool.fsp.packets import (
     DROPS_MODULUS,
@@ -108,6 +117,8 @@ class StateColumns:
     """float64, per packet: OBC time of the read that completed the packet; NaN if unknown."""
     epoch: np.ndarray
     """int64, per packet: FC resets seen up to and including this packet."""
+    outlier: np.ndarray
+    """bool, per packet: `StatePacket.outlier` (times provisional, left out of the books)."""
     tunnel: np.ndarray
     """bool, per packet: the 180-byte variant."""
     mavlink: np.ndarray | None
@@ -158,13 +169,16 @@ def decode_columns(
     arrival_times: Sequence[float] | np.ndarray | None = None,
     *,
     clock: ClockEstimator | str | None = None,
+    connections: Sequence[int] = (),
 ) -> StateColumns:
     """Decode `data` as a fresh `StateDecoder` would, fed it read by read.
 
     `read_sizes` are the lengths of the reads `data` arrived in (default: one read); they
     matter only where an over-long chunk spans reads. `arrival_times` holds each read's OBC
     time (s) and enables OBC times through `clock`, an estimator or its name as
-    `StateDecoder` takes it (default: `StateDecoder`'s default).
+    `StateDecoder` takes it (default: `StateDecoder`'s default). `connections` are the
+    indices of the reads that began a new connection after the first: the decoder was
+    `resync`ed before each.
     """
     require("analysis", "numpy", what=WHAT)
     import numpy as np
@@ -182,10 +196,14 @@ def decode_columns(
             raise ValueError("read_sizes must be non-negative and add up to len(data)")
         if arrival_times is not None and len(arrival_times) != len(read_ends):
             raise ValueError("arrival_times needs one time per read")
+    starts = np.asarray(connections, np.int64)
+    if np.any((starts < 1) | (starts >= len(read_ends))):
+        raise ValueError("connections must be indices of reads after the first")
+    cuts = np.unique(read_ends[starts - 1])  # where each of those reads begins
 
     stats = StreamStats(bytes=size, rejected=dict.fromkeys(Rejection, 0))
     parts: dict[str, list] = {}
-    for block in _deframe(np, data, buf, read_ends, stats.rejected):
+    for block in _deframe(np, data, buf, read_ends, cuts, stats.rejected):
         for name, part in _block_columns(np, *block).items():
             parts.setdefault(name, []).append(part)
     if not parts:
@@ -277,26 +295,32 @@ def _delimiters(np: Any, buf: np.ndarray) -> np.ndarray:
 
 
 def _deframe(
-    np: Any, data: bytes, buf: np.ndarray, read_ends: np.ndarray, rejected: dict
+    np: Any, data: bytes, buf: np.ndarray, read_ends: np.ndarray, cuts: np.ndarray, rejected: dict
 ) -> Iterator[tuple[np.ndarray, np.ndarray]]:
     """Blocks of accepted packets: (delimiter position of each, its record), in stream
     order within each packet length. Counts the rejections as it goes.
 
     Mirrors `framing.Deframer` fed read by read: a chunk is dropped undecoded (LENGTH) when
     at the end of some read more than `_MAX_CHUNK` of it had arrived; a chunk that no
-    delimiter completes is pending, not rejected.
+    delimiter completes is pending, not rejected, and so is one cut off at `cuts`, where the
+    byte stream broke (`Deframer.resync`): the next chunk begins there.
     """
-    ends = np.append(_delimiters(np, buf), len(buf))  # the last "chunk" is the pending tail
+    delimiters = _delimiters(np, buf)
+    # Chunks end at delimiters, at cuts and (the pending tail) at the end of the data;
+    # a cut ends the chunk before a delimiter at the same place.
+    ends = np.concatenate((delimiters, cuts, [len(buf)]))
+    cut = np.concatenate((np.zeros(len(delimiters), bool), np.ones(len(cuts) + 1, bool)))
+    order = np.lexsort((~cut, ends))
+    ends, cut = ends[order], cut[order]
     starts = np.empty_like(ends)
     starts[0] = 0
-    starts[1:] = ends[:-1] + 1
+    starts[1:] = ends[:-1] + ~cut[:-1]  # past the delimiter, or right at the cut
     lengths = ends - starts
     bounds = np.concatenate(([0], read_ends))
     last_read_end = bounds[np.searchsorted(bounds, ends, side="right") - 1]
     discarded = last_read_end - starts > _MAX_CHUNK
     rejected[Rejection.LENGTH] += int(np.count_nonzero(discarded))
-    complete = ~discarded & (lengths > 0)
-    complete[-1] = False
+    complete = ~discarded & (lengths > 0) & ~cut
 
     encoded = {length + 1: length for length in STATE_VERSIONS}
     candidate = complete & np.isin(lengths, list(encoded))
@@ -399,14 +423,37 @@ def _timed(
     count = len(raw["seq"])
     sample_time_us = raw["sample_time_us"].astype(np.int64)
     base_raw, second_raw = sample_time_us[:, 0], sample_time_us[:, 1]
-    base_us, reset, wraps = _unwrap(np, base_raw, arrival_time)
+    seq = np.where(raw["e1"], raw["seq"].astype(np.int64), -1)  # -1: no E1
+    period = (second_raw - base_raw) % U32
+    outlier, restart = _order(
+        np, base_raw, period, arrival_time, seq, raw["drops"].astype(np.int64)
+    )
+    # The booked packets (all but outliers) are unwrapped as one chain ...
+    booked = np.flatnonzero(~outlier)
+    chain_us, chain_reset, wraps = _unwrap(
+        np,
+        base_raw[booked],
+        None if arrival_time is None else arrival_time[booked],
+        restart[booked],
+    )
+    base_us = np.zeros(count, np.int64)
+    reset = np.zeros(count, bool)
+    base_us[booked], reset[booked] = chain_us, chain_reset
+    # ... and an outlier is timed as the nearest instant to the packet booked before it.
+    outliers = np.flatnonzero(outlier)
+    if len(outliers):
+        before = booked[np.searchsorted(booked, outliers) - 1]  # the first one is booked
+        step = (base_raw[outliers] - base_raw[before]) % U32
+        base_us[outliers] = base_us[before] + np.where(step >= U32 // 2, step - U32, step)
     second_us = base_us + (second_raw - base_raw) % U32
     packet_time_us = base_us + (raw["tx_time_us"].astype(np.int64) - base_raw) % U32
     epoch = np.cumsum(reset, dtype=np.int64)
-    _count_loss(np, raw, base_us, second_us, reset, stats)
+    chain = {key: raw[key][booked] for key in ("e1", "seq", "drops")}
+    _count_loss(np, chain, base_us[booked], second_us[booked], chain_reset, stats)
     stats.packets, stats.frames = count, 2 * count
     stats.e1 = bool(raw["e1"][-1]) if count else None
     stats.wraps, stats.resets = wraps, int(epoch[-1]) if count else 0
+    stats.outliers = len(outliers)
 
     time_us = np.stack([base_us, second_us], axis=1).reshape(-1)
     if arrival_time is None:
@@ -414,7 +461,7 @@ def _timed(
         arrival_time = np.full(count, np.nan)
     else:
         estimator = StateDecoder(clock).clock  # the estimator StateDecoder would use
-        obc_time = _obc_times(np, estimator, reset, packet_time_us, arrival_time, time_us)
+        obc_time = _obc_times(np, estimator, reset, outlier, packet_time_us, arrival_time, time_us)
     frames = {name: raw[name].reshape(2 * count, *raw[name].shape[2:]) for name, _ in FRAME_LAYOUT}
     return StateColumns(
         time_us=time_us,
@@ -427,14 +474,81 @@ def _timed(
         packet_time_us=packet_time_us,
         arrival_time=arrival_time,
         epoch=epoch,
+        outlier=outlier,
         tunnel=raw["tunnel"],
         mavlink=raw.get("mavlink"),
         stats=stats,
     )
 
 
-def _unwrap(np: Any, raw: np.ndarray, obc: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, int]:
-    """(64-bit times, where a reset happened, wraps) of `FcClock` fed `raw` and `obc`.
+def _order(
+    np: Any,
+    raw: np.ndarray,
+    period: np.ndarray,
+    obc: np.ndarray | None,
+    seq: np.ndarray,
+    drops: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(outliers, booked packets whose E1 `seq` restarted) as `StateDecoder` finds them.
+
+    Where each packet `follows` the one before (`decoder.follows`, here on whole arrays)
+    there is nothing to decide; from each packet that does not, the decoder's walk is
+    repeated packet by packet until a packet follows the newest booked one again.
+    """
+    count = len(raw)
+    outlier = np.zeros(count, bool)
+    restart = np.zeros(count, bool)
+    if count < 2:
+        return outlier, restart
+    step = (raw[1:] - raw[:-1]) % U32
+    steady = step < STEADY_STEP_US
+    if obc is not None:
+        steady &= obc[1:] - obc[:-1] < STEADY_GAP_S
+    sent = (seq[1:] - seq[:-1]) % SEQ_MODULUS
+    expected = (2 * sent + (drops[1:] - drops[:-1]) % DROPS_MODULUS) * period[:-1]
+    in_place = np.abs(step - expected) <= expected // 2 + JITTER_US
+    periodic = (period[:-1] > 0) & (period[:-1] < STEADY_STEP_US)
+    in_seq = (sent > 0) & (sent < SEQ_MODULUS // 2) & (in_place | ~periodic)
+    steady &= in_seq | (seq[1:] < 0) | (seq[:-1] < 0)
+
+    def reading(index: int) -> Reading:
+        number = int(seq[index])
+        return (
+            int(raw[index]),
+            int(period[index]),
+            None if obc is None else float(obc[index]),
+            None if number < 0 else number,
+            int(drops[index]),
+        )
+
+    end = 0
+    for start in (np.flatnonzero(~steady) + 1).tolist():
+        if start < end:
+            continue
+        last, suspect = start - 1, None
+        index = start
+        while index < count:
+            if follows(reading(last), reading(index)):
+                last, suspect = index, None  # an earlier suspect stays an outlier
+            elif suspect is not None and follows(reading(suspect), reading(index)):
+                outlier[suspect] = False
+                restart[suspect] = restarted(reading(last), reading(suspect))
+                last, suspect = index, None
+            else:
+                outlier[index] = True
+                suspect = index
+            index += 1
+            if suspect is None:
+                break
+        end = index
+    return outlier, restart
+
+
+def _unwrap(
+    np: Any, raw: np.ndarray, obc: np.ndarray | None, restart: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """(64-bit times, where a reset happened, wraps) of `FcClock` fed `raw` and `obc`;
+    `restart` marks the readings whose stream started over (`FcClock.unwrap(restarted=)`).
 
     A steady step is forward by its u32 difference; every other step (a long gap, a jump
     back, a reboot) is decided by an `FcClock` that has seen only the reading before it,
@@ -454,7 +568,9 @@ def _unwrap(np: Any, raw: np.ndarray, obc: np.ndarray | None) -> tuple[np.ndarra
         fc_clock = FcClock()
         before, after = (None, None) if obc is None else obc[index - 1 : index + 1].tolist()
         fc_clock.unwrap(int(raw[index - 1]), before)
-        time_us, reset[index] = fc_clock.unwrap(int(raw[index]), after)
+        time_us, reset[index] = fc_clock.unwrap(
+            int(raw[index]), after, restarted=bool(restart[index])
+        )
         steps[index] = time_us - raw[index - 1]
     # Each epoch starts at its raw reading and adds up its steps from there.
     starts = np.flatnonzero(reset)
@@ -478,9 +594,9 @@ def _count_loss(
     reset: np.ndarray,
     stats: StreamStats,
 ) -> None:
-    """`StateDecoder._count_loss` over every pair of consecutive packets of one epoch."""
-    follows = ~reset[1:]  # a packet after a reset has no predecessor to compare with
-    e1 = raw["e1"][1:] & raw["e1"][:-1] & follows
+    """`StateDecoder._count_loss` over every pair of consecutive booked packets of one epoch."""
+    same_epoch = ~reset[1:]  # a packet after a reset has no predecessor to compare with
+    e1 = raw["e1"][1:] & raw["e1"][:-1] & same_epoch
     seq = raw["seq"].astype(np.int64)
     gap = (seq[1:] - seq[:-1] - 1) % SEQ_MODULUS
     lost = np.where(e1 & (gap < SEQ_MODULUS // 2), gap, 0)  # larger: a repeat or reorder
@@ -489,7 +605,7 @@ def _count_loss(
     stats.lost_frames += 2 * int(lost.sum())
     stats.fc_drops += int(np.where(e1, (drops[1:] - drops[:-1]) % DROPS_MODULUS, 0).sum())
 
-    timed = follows & ~e1
+    timed = same_epoch & ~e1
     period = (second_us - base_us)[1:]
     timed &= period > 0
     if timed.any():
@@ -501,6 +617,7 @@ def _obc_times(
     np: Any,
     clock: ClockEstimator,
     reset: np.ndarray,
+    outlier: np.ndarray,
     packet_time_us: np.ndarray,
     arrival_time: np.ndarray,
     time_us: np.ndarray,
@@ -518,8 +635,9 @@ def _obc_times(
     for first in range(0, len(reset), BLOCK_ROWS):
         block = slice(first, first + BLOCK_ROWS)
         frame_times = iter(time_us[2 * first : 2 * (first + BLOCK_ROWS)].tolist())
-        for was_reset, packet_us, arrived, first_us, second_us in zip(
+        for was_reset, left_out, packet_us, arrived, first_us, second_us in zip(
             reset[block].tolist(),
+            outlier[block].tolist(),
             packet_time_us[block].tolist(),
             arrival_time[block].tolist(),
             frame_times,
@@ -527,7 +645,8 @@ def _obc_times(
         ):
             if was_reset:
                 forget()
-            observe(packet_us, arrived)
+            if not left_out:
+                observe(packet_us, arrived)
             first_obc, second_obc = to_obc(first_us), to_obc(second_us)
             append(nan if first_obc is None else first_obc)
             append(nan if second_obc is None else second_obc)

@@ -7,14 +7,23 @@ FC itself dropped (E1 `drops`), wraps and resets of the FC clock, and each frame
 on the OBC clock. With E2 (spec §10) it also takes the FC's time replies, places their FC
 times in the stream's and pairs them with the commands sent (`round_trips`); a decoder
 without E2 counts each reply as one chunk of bad length.
+
+A packet that does not continue the stream (`follows`) is delivered at once, marked an
+outlier, and kept out of the books until the next packet shows what it was: an outlier
+(a repeated old packet, or a sample time that passed the CRC by chance) when the next one
+continues the stream before it, or the first packet of what comes next (an FC reset, a
+wrap after a gap) when the next one continues it. Only then, with E1 `seq` and its
+continuity, is a step decided: one lone packet never makes a reset or a loss.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 
 from wftool.fsp.clock import (
+    STEADY_GAP_S,
+    STEADY_STEP_US,
     U32,
     ClockEstimator,
     ClockState,
@@ -48,6 +57,63 @@ REPLY_PLACE_US = 1_000_000
 """A time reply's FC send time lies this close to the latest state packet's (spec §10)."""
 
 
+JITTER_US = 1000
+"""How far a sample may be off its place in the stream, on top of half the step expected."""
+
+Reading = tuple[int, int, "float | None", "int | None", int]
+"""What `follows` looks at in a packet: its first frame's FC time, the frame period it
+shows (µs, both u32), its arrival time, its E1 `seq` (None without E1) and `drops`."""
+
+
+def follows(earlier: Reading, later: Reading) -> bool:
+    """Whether `later` continues the stream after `earlier`: a steady step of the FC clock
+    (`clock.STEADY_STEP_US`, within `clock.STEADY_GAP_S` of OBC time) and, when both carry
+    E1, a `seq` ahead by less than half its range with a step as long as the frames it
+    spans (sent and dropped ones) take, give or take half of that and `JITTER_US`.
+    `columns` applies the same rule to arrays."""
+    raw_us, period_us, obc_time, seq, drops = earlier
+    next_raw_us, _, next_obc_time, next_seq, next_drops = later
+    step = (next_raw_us - raw_us) % U32
+    if step >= STEADY_STEP_US:
+        return False
+    timed = obc_time is not None and next_obc_time is not None
+    if timed and not next_obc_time - obc_time < STEADY_GAP_S:  # type: ignore[operator]
+        return False
+    if seq is None or next_seq is None:
+        return True
+    sent = (next_seq - seq) % SEQ_MODULUS
+    if not 0 < sent < _SEQ_HALF:
+        return False
+    if not 0 < period_us < STEADY_STEP_US:
+        return True  # no period to hold the step against
+    expected = (2 * sent + (next_drops - drops) % DROPS_MODULUS) * period_us
+    return abs(step - expected) <= expected // 2 + JITTER_US
+
+
+def restarted(earlier: Reading, later: Reading) -> bool:
+    """Whether the FC started its stream over between `earlier` and `later`, a packet that
+    did not follow it but that the next one follows. E1 tells: `seq` went back. Without
+    arrival times (the OBC clock tells otherwise: `FcClock`), also when `seq` moved on by
+    more than a second of packets and the FC time step is not as long as the frames sent
+    and dropped meanwhile take (within 1/32 and a second): after more than 2^31 µs of
+    uptime a reboot looks like a step ahead of the clock, and at a high rate of the
+    sequence too. Where 2^24 packets take as long as 2^32 µs (a frame period near 128 µs)
+    the two cannot be told apart."""
+    raw_us, period_us, obc_time, seq, drops = earlier
+    next_raw_us, _, next_obc_time, next_seq, next_drops = later
+    if seq is None or next_seq is None:
+        return False
+    sent = (next_seq - seq) % SEQ_MODULUS
+    if not 0 < sent < _SEQ_HALF:
+        return True
+    if (obc_time is not None and next_obc_time is not None) or not 0 < period_us < STEADY_STEP_US:
+        return False
+    expected = (2 * sent + (next_drops - drops) % DROPS_MODULUS) * period_us
+    if expected < STEADY_STEP_US:
+        return False  # the same run, a short way on: it stalled
+    return abs((next_raw_us - raw_us) % U32 - expected) > expected // 32 + STEADY_STEP_US
+
+
 @dataclass
 class StreamStats:
     """Running totals of one decoder. Loss figures restart their baselines at an FC reset."""
@@ -57,7 +123,8 @@ class StreamStats:
     frames: int = 0
     rejected: dict[Rejection, int] = field(default_factory=dict)
     lost_packets: int = 0
-    """State packets missing from the E1 `seq` sequence (transport loss; E1 only)."""
+    """State packets missing from the E1 `seq` sequence (transport loss; E1 only), an
+    outlier's among them: its frames are not in the books."""
     lost_frames: int = 0
     """Frames lost in transport: 2 per lost packet with E1, else inferred from time gaps."""
     fc_drops: int = 0
@@ -68,24 +135,13 @@ class StreamStats:
     resets: int = 0
     time_replies: int = 0
     """E2 time replies decoded (with E2 on; spec §10)."""
+    outliers: int = 0
+    """Packets that fit neither the stream before nor after them (`StatePacket.outlier`)."""
 
     @property
     def errors(self) -> int:
         """Chunks that did not decode, all causes."""
         return sum(self.rejected.values())
-
-    def __add__(self, later: StreamStats) -> StreamStats:
-        """The totals of two streams (say, two connections), `later` after this one."""
-        summed = {
-            f.name: getattr(self, f.name) + getattr(later, f.name)
-            for f in fields(self)
-            if f.name not in ("rejected", "e1")
-        }
-        rejected = {
-            cause: self.rejected.get(cause, 0) + later.rejected.get(cause, 0) for cause in Rejection
-        }
-        e1 = later.e1 if later.e1 is not None else self.e1
-        return StreamStats(**summed, rejected=rejected, e1=e1)
 
 
 class StateDecoder:
@@ -110,6 +166,11 @@ class StateDecoder:
         self._deframer = Deframer(STATE_E2_VERSIONS if time_replies else STATE_VERSIONS)
         self.stats = StreamStats(rejected=self._deframer.rejected)
         self._last: StatePacket | None = None
+        self._suspect: StatePacket | None = None
+        """The latest packet, if it did not follow `_last`: an outlier unless the next
+        packet follows it."""
+        self._last_reading: Reading = (0, 0, None, None, 0)
+        self._suspect_reading: Reading = self._last_reading
         self._epoch = 0
 
     @property
@@ -118,8 +179,14 @@ class StateDecoder:
 
     @property
     def last_packet(self) -> StatePacket | None:
-        """The newest packet decoded (None before the first)."""
+        """The newest packet in the books (None before the first): outliers are not."""
         return self._last
+
+    def resync(self) -> None:
+        """The byte stream broke off and starts again (a reconnect): the partial chunk is
+        dropped. The FC's stream goes on, and so do its clock, its sequence and the books:
+        what was lost meanwhile is counted as any loss."""
+        self._deframer.resync()
 
     def feed(self, data: bytes, arrival_time: float | None = None) -> list[StatePacket]:
         """Packets completed by `data`; `arrival_time` (OBC clock, s) enables clock alignment."""
@@ -143,38 +210,81 @@ class StateDecoder:
         packets = list(parsed)
         if not packets:
             return packets
-        stats = self.stats
-        unwrap = self._fc_clock.unwrap
-        clock = self.clock
-        last = self._last
         for packet in packets:
-            # Unwrap the oldest instant in the packet; the others follow it within a period.
+            packet.arrival_time = arrival_time
             first, second = packet.frames
             base_raw = first.values[0]
-            base_us, reset = unwrap(base_raw, arrival_time)
-            if reset:
-                self._epoch += 1
-                last = None
-                clock.reset()
-            first.time_us = base_us
-            second.time_us = second_us = base_us + (second.values[0] - base_raw) % U32
-            packet.time_us = time_us = base_us + (packet.tx_time_us - base_raw) % U32
-            packet.arrival_time = arrival_time
-            packet.epoch = self._epoch
-            if arrival_time is not None:
-                clock.observe(time_us, arrival_time)
-                first.obc_time = clock.to_obc(base_us)
-                second.obc_time = clock.to_obc(second_us)
-            if last is not None:
-                self._count_loss(last, packet, base_us, second_us)
-            last = packet
-        self._last = last
-        stats.e1 = last.e1
+            now = (
+                base_raw,
+                (second.values[0] - base_raw) % U32,
+                arrival_time,
+                packet.seq if packet.e1 else None,
+                packet.drops,
+            )
+            last, suspect = self._last, self._suspect
+            if last is None or follows(self._last_reading, now):
+                self._suspect = None  # an earlier suspect stays an outlier
+                self._book(packet, now, last)
+            elif suspect is not None and follows(self._suspect_reading, now):
+                self._suspect = None  # it began what comes next: book it, then this one
+                suspect.outlier = False
+                self.stats.outliers -= 1
+                before = self._suspect_reading
+                self._book(suspect, before, last, restarted(self._last_reading, before))
+                self._book(packet, now, suspect)
+            else:
+                self._suspect, self._suspect_reading = packet, now
+                self._provisional(packet, last)
+        stats = self.stats
+        stats.e1 = packets[-1].e1
         stats.packets += len(packets)
         stats.frames += 2 * len(packets)
         stats.wraps = self._fc_clock.wraps
         stats.resets = self._fc_clock.resets
         return packets
+
+    def _book(
+        self, packet: StatePacket, now: Reading, last: StatePacket | None, restart: bool = False
+    ) -> None:
+        """Put `packet` (`now` its reading) in the books after `last`, the newest in them."""
+        # Unwrap the oldest instant in the packet; the others follow it within a period.
+        first, second = packet.frames
+        base_raw = first.values[0]
+        arrival_time = packet.arrival_time
+        base_us, reset = self._fc_clock.unwrap(base_raw, arrival_time, restarted=restart)
+        clock = self.clock
+        if reset:
+            self._epoch += 1
+            last = None
+            clock.reset()
+        first.time_us = base_us
+        second.time_us = second_us = base_us + now[1]
+        packet.time_us = time_us = base_us + (packet.tx_time_us - base_raw) % U32
+        packet.epoch = self._epoch
+        if arrival_time is not None:
+            clock.observe(time_us, arrival_time)
+            first.obc_time = clock.to_obc(base_us)
+            second.obc_time = clock.to_obc(second_us)
+        if last is not None:
+            self._count_loss(last, packet, base_us, second_us)
+        self._last, self._last_reading = packet, now
+
+    def _provisional(self, packet: StatePacket, last: StatePacket) -> None:
+        """Time `packet` as the nearest instant to `last` and mark it an outlier."""
+        packet.outlier = True
+        self.stats.outliers += 1
+        first, second = packet.frames
+        base_raw = first.values[0]
+        step = (base_raw - last.frames[0].values[0]) % U32
+        first.time_us = base_us = last.frames[0].time_us + (
+            step - U32 if step >= _HALF_U32 else step
+        )
+        second.time_us = base_us + (second.values[0] - base_raw) % U32
+        packet.time_us = base_us + (packet.tx_time_us - base_raw) % U32
+        packet.epoch = self._epoch
+        if packet.arrival_time is not None:
+            first.obc_time = self.clock.to_obc(first.time_us)
+            second.obc_time = self.clock.to_obc(second.time_us)
 
     def _time_reply(self, reply: TimeReply, arrival_time: float | None) -> None:
         """Place a reply's FC times against the latest state packet's, then pair it."""

@@ -71,6 +71,12 @@ class Deframer:
         self._discarding = False
         self.rejected: dict[Rejection, int] = dict.fromkeys(Rejection, 0)
 
+    def resync(self) -> None:
+        """The byte stream broke off (a reconnect): forget the partial chunk; what comes
+        next starts a chunk of its own."""
+        self._tail = b""
+        self._discarding = False
+
     def feed(self, data: bytes) -> list[bytes]:
         """Payloads of every packet completed by `data`, in stream order."""
         chunks = (self._tail + data).split(DELIMITER) if self._tail else data.split(DELIMITER)

@@ -174,7 +174,7 @@ class StatePacket:
     """FC → OBC state packet (spec §3): two sensor frames, optional MAVLink tunnel, E1."""
 
     __slots__ = (
-        "arrival_time", "drops", "e1", "epoch", "frames", "mavlink", "seq", "time_us",
+        "arrival_time", "drops", "e1", "epoch", "frames", "mavlink", "outlier", "seq", "time_us",
         "tx_time_us",
     )  # fmt: skip
 
@@ -200,6 +200,11 @@ class StatePacket:
         """OBC clock (s) when the bytes carrying this packet were read (set by the decoder)."""
         self.epoch = 0
         """How many FC resets the decoder had seen when this packet arrived."""
+        self.outlier = False
+        """The packet fits neither the stream before it nor (so far) the one after it: a
+        repeat, or a time that passed the CRC by chance. Its times are provisional and it is
+        left out of the books; the next packet may show it began a new epoch instead (the
+        decoder then corrects it in place). Set by the decoder."""
 
     def _wire(self) -> tuple:
         return (self.tx_time_us, self.frames, self.seq, self.e1, self.drops, self.mavlink)
@@ -288,6 +293,7 @@ def parse_state(payload: bytes) -> StatePacket:
     packet.drops = drops
     packet.time_us = packet.arrival_time = None
     packet.epoch = 0
+    packet.outlier = False
     return packet
 
 

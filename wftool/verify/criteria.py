@@ -26,6 +26,9 @@ class Criteria:
     max_drops_pct: float = 0.1
     """FC-side drops (frames the FC's queue had no room for), % of frames."""
     max_errors: int = 0
+    """Rejected chunks and outlier packets."""
+    max_outage_s: float = 0.0
+    """Time the port may be gone during the run (s, all outages): 0 fails any reconnect."""
     uplink: bool = False
 
 
@@ -104,6 +107,9 @@ def judge(summary: StreamSummary, criteria: Criteria) -> Verdict:
             summary.errors <= criteria.max_errors,
         )
     )
+    outage, max_outage = summary.outage_s, criteria.max_outage_s  # any reconnect fails 0
+    passed = outage <= max_outage
+    checks.append(Check("time disconnected", round(outage, 3), max_outage, passed, " s"))
     if criteria.uplink:
         uplink = summary.uplink
         echoed = round(uplink.echoed_fraction, 3) if uplink is not None else 0.0

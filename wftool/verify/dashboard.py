@@ -16,7 +16,7 @@ from rich.text import Text
 
 from wftool.fsp import SensorFrame
 from wftool.verify.criteria import Verdict
-from wftool.verify.monitor import IntervalSummary, StreamSummary
+from wftool.verify.monitor import OUTLIER, IntervalSummary, StreamSummary
 
 LABEL = 21
 CELL = 9
@@ -90,14 +90,17 @@ def _intervals(summary: StreamSummary) -> list[Text]:
 
 
 def _integrity(summary: StreamSummary) -> Text:
-    rejected = "  ".join(f"{cause} {count}" for cause, count in summary.rejected.items())
+    rejected = "  ".join(
+        f"{cause} {count}" for cause, count in summary.rejected.items() if cause != OUTLIER
+    )
     e1 = {True: "on", False: "off (loss inferred from time gaps)", None: "–"}[summary.e1]
     return Text.from_markup(
         f"[b]loss[/] {summary.lost_frames} frames ({summary.loss_pct:.3f} %)   "
         f"[b]FC drops[/] {summary.fc_drops}   [b]E1[/] {e1}\n"
-        f"[b]rejected[/] {rejected}   (joining mid-stream: {summary.sync_rejected})\n"
+        f"[b]rejected[/] {rejected}  [b]outliers[/] {summary.rejected.get(OUTLIER, 0)}   "
+        f"(cut by joining: {summary.sync_rejected})\n"
         f"[b]FC resets[/] {summary.resets}   [b]clock wraps[/] {summary.wraps}   "
-        f"[b]reconnects[/] {summary.reconnects}"
+        f"[b]reconnects[/] {summary.reconnects} ({summary.outage_s:.1f} s gone)"
     )
 
 

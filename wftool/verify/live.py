@@ -7,13 +7,14 @@ counted, and reopened with backoff — a rebooting FC or a restarted SITL is sur
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from wftool.errors import PortError
+from wftool.errors import PortError, UsageError
 from wftool.fsp import FspPort, StatePacket
 from wftool.verify.monitor import StreamMonitor, StreamSummary
 from wftool.verify.recording import Event, Recorder
@@ -29,6 +30,14 @@ BACKOFF_FIRST_S = 0.1
 BACKOFF_MAX_S = 2.0
 
 
+def check_duration(seconds: float | None, name: str = "the duration") -> float | None:
+    """`seconds`, if it can be the length of a run: None (until stopped), or finite and
+    positive; else a `UsageError` naming it as `name`."""
+    if seconds is not None and not (math.isfinite(seconds) and seconds > 0):
+        raise UsageError(f"{name} must be a positive number of seconds, not {seconds:g}")
+    return seconds
+
+
 @dataclass(frozen=True)
 class LiveOptions:
     url: str
@@ -36,6 +45,9 @@ class LiveOptions:
     duration_s: float | None = None
     uplink_rate_hz: float | None = None
     """Send the uplink pattern at this rate; None sends nothing."""
+
+    def __post_init__(self) -> None:
+        check_duration(self.duration_s)
 
 
 def run_live(

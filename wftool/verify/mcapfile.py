@@ -11,22 +11,41 @@ it are dropped.
 
 The failed write's partial data is what frees the space the ~50-byte ending needs; only a
 disk that another process filled to the last block can leave the file without an ending.
+
+A file without an ending (its writer was killed: SIGKILL, a power cut) is read by
+`LinearReader`, record by record, as far as it goes, the readable part of a chunk cut
+short included; `Cut` says what was read and what was lost.
 """
 
 from __future__ import annotations
 
+import io
 import os
 import struct
 from collections import Counter
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import IO
 
+import lz4.frame
+import zstandard
 from mcap.data_stream import ReadDataStream, RecordBuilder
 from mcap.exceptions import McapError
 from mcap.opcode import Opcode
-from mcap.records import Chunk, ChunkIndex, DataEnd, Footer, MessageIndex
-from mcap.stream_reader import get_chunk_data_stream
+from mcap.records import (
+    Channel,
+    Chunk,
+    ChunkIndex,
+    DataEnd,
+    Footer,
+    Header,
+    Message,
+    MessageIndex,
+    Metadata,
+    Schema,
+)
+from mcap.stream_reader import breakup_chunk, get_chunk_data_stream
 from mcap.summary import Summary
 from mcap.writer import MCAP0_MAGIC, CompressionType, Writer
 
@@ -59,17 +78,19 @@ class _TrackedFile:
 
 
 class McapFile:
-    """An MCAP writer over `path` (created, or replaced if `replace`); `finish()` ends it.
+    """An MCAP writer creating `path` (never replacing a file); `finish()` ends it.
 
     Opening failures are `UsageError` (nothing was recorded yet); write failures later are
     `RecordingError`, raised after the file has been finished up to its last chunk.
     """
 
-    def __init__(self, path: Path, profile: str, library: str, *, replace: bool = True) -> None:
+    def __init__(self, path: Path, profile: str, library: str) -> None:
         self.path = path
-        flags = os.O_WRONLY | os.O_CREAT | (os.O_TRUNC if replace else os.O_EXCL)
+        flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0)
         try:
-            fd = os.open(path, flags | getattr(os, "O_BINARY", 0), 0o666)
+            fd = os.open(path, flags, 0o666)
+        except FileExistsError:
+            raise UsageError(f"cannot write the recording: {path} already exists") from None
         except OSError as exc:
             raise UsageError(f"cannot write the recording: {exc}") from None
         self._file = _TrackedFile(fd)
@@ -235,3 +256,138 @@ def _indexed(stream: IO[bytes], chunk_indexes: list[ChunkIndex], channel: int) -
             if opcode != Opcode.MESSAGE or channel_id != channel:
                 raise McapError(f"the message index points at no message of channel {channel}")
             yield records[at + head.size : at + 9 + length]
+
+
+# -- reading a file that has no ending --------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Cut:
+    """Where a file without its ending stops (its writer was killed, the machine went down):
+    what it still held and what was lost with it."""
+
+    size: int
+    """Bytes in the file."""
+    whole: int
+    """Bytes in whole records, from the start: all that could be read as written."""
+    messages: int
+    """Messages read, those of a chunk cut short included."""
+    log_times: tuple[int, int] | None
+    """(first, last) log time (ns) of the messages read, if any."""
+    cut_chunk: tuple[int, int] | None = None
+    """(first, last) log time (ns) of the messages of a chunk cut short, if the file ends
+    inside one: those after the last read were lost."""
+    data_end: bool = False
+    """The data section was whole (its Data End record was read): only indexes are lost."""
+
+    def describe(self) -> str:
+        """What was read and what was lost, in seconds from the first message."""
+        said = f"not finished (its writer was stopped hard), read to byte {self.whole:,} of "
+        said += f"{self.size:,}: {self.messages:,} messages"
+        if self.log_times is not None:
+            said += f", {self._at(self.log_times[1])} of the run"
+        if self.data_end:
+            return said + "; no message lost, only the file's index"
+        said += "; lost: "
+        if self.cut_chunk is not None:
+            said += f"the rest of a chunk cut short (up to {self._at(self.cut_chunk[1])}) and "
+        return said + "what the writer still held (up to a chunk, about a second)"
+
+    def _at(self, log_time: int) -> str:
+        first = self.log_times[0] if self.log_times is not None else log_time
+        return f"{(log_time - first) / 1e9:.1f} s"
+
+
+class LinearReader:
+    """Every record of an MCAP file in file order, chunks opened, read to its Footer or to
+    where the file stops: `cut` then says where (None for a finished file). Of a chunk cut
+    short, what its compressed part that reached the file decodes to is read too.
+
+    A file written by `McapFile` or any `mcap` writer ends with a Footer; one whose writer
+    was killed (SIGKILL, a power cut) ends after its last whole chunk, or inside one.
+    """
+
+    def __init__(self, handle: IO[bytes]) -> None:
+        self._handle = handle
+        self.cut: Cut | None = None
+
+    def records(self) -> Iterator[object]:
+        handle = self._handle
+        handle.seek(0, os.SEEK_END)
+        size = handle.tell()
+        handle.seek(0)
+        if handle.read(len(MCAP0_MAGIC)) != MCAP0_MAGIC:
+            raise McapError("not an MCAP file")
+        position, messages, log_times = len(MCAP0_MAGIC), 0, None
+        cut_chunk, data_end = None, False
+        while True:
+            head = handle.read(_RECORD_HEAD.size)
+            if len(head) < _RECORD_HEAD.size:
+                break
+            opcode, length = _RECORD_HEAD.unpack(head)
+            whole = length <= size - position - _RECORD_HEAD.size  # else the file stops in it
+            records: list[object] = []
+            if whole:
+                record = _record(opcode, handle.read(length), length)
+                position += _RECORD_HEAD.size + length
+                if isinstance(record, Footer):
+                    return
+                data_end = data_end or isinstance(record, DataEnd)
+                records = breakup_chunk(record) if isinstance(record, Chunk) else [record]
+            elif opcode == Opcode.CHUNK:
+                cut_chunk, records = _cut_chunk(handle.read())
+            for record in records:
+                if isinstance(record, Message):
+                    messages += 1
+                    first = log_times[0] if log_times is not None else record.log_time
+                    log_times = (first, record.log_time)
+                yield record
+            if not whole:
+                break
+        self.cut = Cut(size, position, messages, log_times, cut_chunk, data_end)
+
+
+_RECORD_HEAD = struct.Struct("<BQ")
+_CHUNK_HEAD = struct.Struct("<QQQII")
+"""A Chunk's start and end log time, uncompressed size and CRC, compression name length."""
+_RECORDS = {
+    Opcode.HEADER: Header, Opcode.FOOTER: Footer, Opcode.SCHEMA: Schema,
+    Opcode.CHANNEL: Channel, Opcode.CHUNK: Chunk, Opcode.METADATA: Metadata,
+    Opcode.DATA_END: DataEnd,
+}  # fmt: skip
+"""The records a recording is read by; the others (indexes, statistics) are skipped."""
+
+
+def _record(opcode: int, body: bytes, length: int) -> object:
+    stream = ReadDataStream(io.BytesIO(body))
+    if opcode == Opcode.MESSAGE:
+        return Message.read(stream, length)
+    kind = _RECORDS.get(opcode)
+    return kind.read(stream) if kind is not None else None
+
+
+def _cut_chunk(rest: bytes) -> tuple[tuple[int, int] | None, list[object]]:
+    """(the log time range, the records that decode) of a chunk the file stops inside."""
+    if len(rest) < _CHUNK_HEAD.size:
+        return None, []
+    start, end, _, _, name_length = _CHUNK_HEAD.unpack_from(rest)
+    compression = rest[_CHUNK_HEAD.size : _CHUNK_HEAD.size + name_length]
+    data = rest[_CHUNK_HEAD.size + name_length + 8 :]  # past the data's length
+    try:
+        if compression == b"zstd":
+            data = zstandard.ZstdDecompressor().decompressobj().decompress(data)
+        elif compression == b"lz4":
+            data = lz4.frame.LZ4FrameDecompressor().decompress(data)
+    except (zstandard.ZstdError, RuntimeError):
+        data = b""
+    records = []
+    position = 0
+    while position + _RECORD_HEAD.size <= len(data):
+        opcode, length = _RECORD_HEAD.unpack_from(data, position)
+        body_at = position + _RECORD_HEAD.size
+        if length > len(data) - body_at:
+            break
+        if opcode in (Opcode.SCHEMA, Opcode.CHANNEL, Opcode.MESSAGE):
+            records.append(_record(opcode, data[body_at : body_at + length], length))
+        position = body_at + length
+    return (start, end), records

@@ -2,8 +2,11 @@
 
 `StreamMonitor` is fed the same events live and on replay — connects, disconnects, byte
 chunks with their OBC arrival time, commands sent — so a recording replays to the same
-summary. Interval statistics live in integer-µs histograms: exact percentiles in memory
-bounded by the number of distinct intervals, not by the length of the run.
+summary. One decoder reads the whole run: a reconnect breaks the bytes, not the FC's
+stream, so what the FC sent during an outage is counted as lost (E1 `seq` says exactly how
+much) and rates are over the whole run. Interval statistics live in integer-µs histograms:
+exact percentiles in memory bounded by the number of distinct intervals, not by the length
+of the run; an interval across a known gap (E1 `seq` or `drops`) is no interval of the FC's.
 """
 
 from __future__ import annotations
@@ -11,20 +14,20 @@ from __future__ import annotations
 import math
 from collections import Counter, deque
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 
-from wftool.fsp import CommandPacket, SensorFrame, StateDecoder, StatePacket, StreamStats
-from wftool.fsp.clock import ESTIMATORS, ClockState, make_estimator
+from wftool.fsp import CommandPacket, SensorFrame, StateDecoder, StatePacket
+from wftool.fsp.clock import ESTIMATORS, ClockState
 from wftool.fsp.encoder import U32_MASK
-from wftool.fsp.framing import Rejection
+from wftool.fsp.framing import DELIMITER, Rejection
 from wftool.fsp.packets import SEQ_MODULUS
 from wftool.fsp.twoway import RoundTrip, RoundTripRejection, TwoWayClockEstimator, TwoWayState
 from wftool.verify.uplink import UplinkStats, UplinkTracker
 
 RATE_WINDOW_S = 2.0
 """The dashboard's "current rate" looks back this far."""
-_SYNC_ALLOWANCE = 1
-"""Joining a stream mid-packet cuts at most one chunk: that rejection is not an error."""
+OUTLIER = "outlier"
+"""The key of packets left out of the books (`StatePacket.outlier`) among the rejections."""
 
 
 @dataclass(frozen=True)
@@ -90,8 +93,10 @@ class StreamSummary:
     fc_drops: int
     e1: bool | None
     rejected: dict[str, int]
+    """Rejected chunks by cause (`Rejection`), and the packets left out as outliers."""
     sync_rejected: int
-    """Chunks rejected before the first packet of each connection (joining mid-stream)."""
+    """Chunks cut by joining mid-stream: the one before the first delimiter of each
+    connection, if it was rejected. Not errors; the rejections in `rejected` are."""
     resets: int
     wraps: int
     reconnects: int
@@ -112,13 +117,18 @@ class StreamSummary:
         return sum(self.rejected.values())
 
     @property
+    def outage_s(self) -> float:
+        """Time the port was gone during the run."""
+        return max(0.0, self.duration_s - self.connected_s)
+
+    @property
     def loss_pct(self) -> float:
         sent = self.frames + self.lost_frames
         return 100.0 * self.lost_frames / sent if sent else 0.0
 
     def as_json(self) -> dict:
         data = asdict(self)
-        data.update(errors=self.errors, loss_pct=self.loss_pct)
+        data.update(errors=self.errors, loss_pct=self.loss_pct, outage_s=self.outage_s)
         for key in ("fc_interval", "arrival_interval"):
             interval = getattr(self, key)
             if interval is not None:
@@ -140,29 +150,6 @@ def _finite_or_none(value: object) -> object:
 
 
 @dataclass
-class _Connection:
-    decoder: StateDecoder
-    """One per connection: a new connection is a new stream (FC clock, sequence, sync)."""
-    opened_at: float
-    synced_errors: int | None = None
-    commands: int = 0
-    """Commands sent on this connection."""
-
-    def stats(self) -> tuple[StreamStats, int]:
-        """The decoder's totals without the chunk cut by joining mid-stream, and that count."""
-        stats = self.decoder.stats
-        sync = self.synced_errors
-        if sync is None:
-            sync = min(_SYNC_ALLOWANCE, stats.errors)
-        if sync:  # the cut chunk: whichever cause it landed in, it is not an error
-            rejected = dict(stats.rejected)
-            cause = next(c for c in Rejection if rejected[c])
-            rejected[cause] -= sync
-            stats = replace(stats, rejected=rejected)
-        return stats, sync
-
-
-@dataclass
 class StreamMonitor:
     """Accumulates one verify run across reconnects."""
 
@@ -173,75 +160,83 @@ class StreamMonitor:
     latest: SensorFrame | None = None
     uplink: UplinkTracker | None = None
     clock: str = ESTIMATORS[0]
-    """The clock estimator of each connection's decoder, by name (`wftool.fsp.ESTIMATORS`)."""
+    """The clock estimator of the run's decoder, by name (`wftool.fsp.ESTIMATORS`)."""
 
     def __post_init__(self) -> None:
-        make_estimator(self.clock)  # an unknown name fails here, not at the first connect
-        self._connection: _Connection | None = None
-        self._last_decoder: StateDecoder | None = None  # for E1 and clock after a disconnect
-        self._closed = StreamStats(rejected=dict.fromkeys(Rejection, 0))  # finished connections
-        self._closed_sync = 0
+        # An unknown clock name fails here. An FC may answer commands: spec §10.
+        self.decoder = StateDecoder(self.clock, time_replies=True)
+        assert self.decoder.round_trips is not None
+        self.decoder.round_trips.on_round_trip = self._round_trip
+        self.round_trips = IntervalHistogram()
+        self._commands = 0
+        """Commands sent on this connection (a port opened with it numbers them from 0)."""
+        self._joined: Counter[Rejection] = Counter()
+        """Rejections of the chunk each connection began in (cut by joining mid-stream)."""
+        self._joining = False
+        """Connected, and no delimiter seen yet: the bytes belong to the cut chunk."""
+        self._connected_at: float | None = None
         self._started: float | None = None
         self._now = 0.0
         self._connected_s = 0.0
         self._reconnects = 0
         self._recent: deque[tuple[float, int]] = deque()
-        self.round_trips = IntervalHistogram()
-        self._trips_rejected: Counter[RoundTripRejection] = Counter()  # finished connections
 
     # -- events -----------------------------------------------------------------------------
 
     def connected(self, t: float) -> None:
         if self._started is None:
             self._started = t
-        elif self._connection is None:
+        elif self._connected_at is None:
             self._reconnects += 1
-        decoder = StateDecoder(self.clock, time_replies=True)  # an FC may answer: spec §10
-        assert decoder.round_trips is not None
-        decoder.round_trips.on_round_trip = self._round_trip
-        self._connection = _Connection(decoder, t)
-        self._last_decoder = self._connection.decoder
+            self.decoder.resync()
+        self._connected_at = t
+        self._joining = True
+        self._commands = 0
         self._now = t
 
     def disconnected(self, t: float) -> None:
-        connection = self._connection
-        if connection is None:
+        if self._connected_at is None:
             return
-        self._connected_s += t - connection.opened_at
-        stats, sync = connection.stats()
-        self._closed += stats
-        self._closed_sync += sync
-        self._trips_rejected += _trips_rejected(connection.decoder)
-        self._connection = None
+        self._connected_s += t - self._connected_at
+        self._connected_at = None
         self._now = t
 
     def feed(self, data: bytes, t: float) -> list[StatePacket]:
-        connection = self._connection
-        if connection is None:
+        if self._connected_at is None:
             raise RuntimeError("feed() before connected()")
         self._now = t
-        decoder = connection.decoder
+        decoder = self.decoder
         before = decoder.last_packet
-        packets = decoder.feed(data, t)
+        packets = []
+        if self._joining:  # only the chunk cut by the connection may be excused
+            head, delimiter, _ = data.partition(DELIMITER)
+            head += delimiter
+            rejected = Counter(decoder.stats.rejected)
+            packets = decoder.feed(head, t)
+            self._joined.update(Counter(decoder.stats.rejected) - rejected)
+            self._joining = not delimiter
+            data = data[len(head) :]
+        if data:
+            packets += decoder.feed(data, t)
         if not packets:
             return packets
-        if connection.synced_errors is None:
-            connection.synced_errors = min(_SYNC_ALLOWANCE, decoder.stats.errors)
-        previous = epoch = last_arrival = None
-        if before is not None:
-            previous, epoch, last_arrival = before.frames[1], before.epoch, before.arrival_time
+        previous = before
+        last_arrival = before.arrival_time if before is not None else None
         for packet in packets:
-            first, second = packet.frames
-            if previous is not None and packet.epoch == epoch:
-                self.fc_intervals.add(first.time_us - previous.time_us)
-            self.fc_intervals.add(second.time_us - first.time_us)
             if last_arrival is not None:
                 self.arrival_intervals.add(round((t - last_arrival) * 1e6))
             last_arrival = t
-            previous, epoch = second, packet.epoch
+            if packet.outlier:
+                continue
+            first, second = packet.frames
+            if previous is not None and _contiguous(previous, packet):
+                self.fc_intervals.add(first.time_us - previous.frames[1].time_us)
+            self.fc_intervals.add(second.time_us - first.time_us)
+            previous = packet
             if self.uplink is not None:
                 self.uplink.observe(packet, t)
-        self.latest = previous
+        if previous is not None:
+            self.latest = previous.frames[1]
         recent = self._recent
         recent.append((t, 2 * len(packets)))
         while recent and recent[0][0] < t - RATE_WINDOW_S:
@@ -256,14 +251,13 @@ class StreamMonitor:
         from a port opened with the connection (seq counting from 0), stamped with `t`."""
         if self.uplink is not None:
             self.uplink.sent(rc, t)
-        connection = self._connection
-        if connection is None:
+        if self._connected_at is None:
             return
         if command is None:
-            command = CommandPacket(tuple(rc), connection.commands % SEQ_MODULUS,  # type: ignore[arg-type]
+            command = CommandPacket(tuple(rc), self._commands % SEQ_MODULUS,  # type: ignore[arg-type]
                                     int(t * 1e6) & U32_MASK)  # fmt: skip
-        connection.commands += 1
-        round_trips = connection.decoder.round_trips
+        self._commands += 1
+        round_trips = self.decoder.round_trips
         assert round_trips is not None
         round_trips.sent(command.seq, command.tx_time_us, t)
 
@@ -274,30 +268,31 @@ class StreamMonitor:
 
     def summary(self, now: float | None = None) -> StreamSummary:
         now = self._now if now is None else now
-        totals, sync = self._closed, self._closed_sync
-        connection = self._connection
+        decoder = self.decoder
+        totals = decoder.stats
+        connected_at = self._connected_at
         connected_s = self._connected_s
-        if connection is not None:
-            stats, current_sync = connection.stats()
-            totals, sync = totals + stats, sync + current_sync
-            connected_s += now - connection.opened_at
-        last = self._last_decoder
+        if connected_at is not None:
+            connected_s += now - connected_at
+        duration_s = now - self._started if self._started is not None else 0.0
+        rejected = {
+            cause.value: totals.rejected[cause] - self._joined[cause] for cause in Rejection
+        }
+        rejected[OUTLIER] = totals.outliers
         fc = self.fc_intervals.summary()
-        trips_rejected = self._trips_rejected.copy()
-        if connection is not None:
-            trips_rejected += _trips_rejected(connection.decoder)
-        clock = last.clock if last is not None else None
+        trips_rejected = _trips_rejected(decoder)
+        clock = decoder.clock
         frames = totals.frames
         window = [n for t, n in self._recent if t >= now - RATE_WINDOW_S]
-        window_s = min(RATE_WINDOW_S, now - connection.opened_at) if connection else RATE_WINDOW_S
+        window_s = min(RATE_WINDOW_S, now - connected_at) if connected_at else RATE_WINDOW_S
         return StreamSummary(
             port=self.port,
-            duration_s=now - self._started if self._started is not None else 0.0,
+            duration_s=duration_s,
             connected_s=connected_s,
             packets=totals.packets,
             frames=frames,
-            frame_rate_hz=frames / connected_s if connected_s > 0 else 0.0,
-            packet_rate_hz=totals.packets / connected_s if connected_s > 0 else 0.0,
+            frame_rate_hz=frames / duration_s if duration_s > 0 else 0.0,
+            packet_rate_hz=totals.packets / duration_s if duration_s > 0 else 0.0,
             current_frame_rate_hz=sum(window) / window_s if window_s > 0 else 0.0,
             source_rate_hz=1e6 / fc.mean_us if fc is not None and fc.mean_us > 0 else None,
             expected_rate_hz=self.expected_rate_hz,
@@ -306,20 +301,31 @@ class StreamMonitor:
             lost_frames=totals.lost_frames,
             lost_packets=totals.lost_packets,
             fc_drops=totals.fc_drops,
-            e1=last.stats.e1 if last is not None else None,
-            rejected={cause.value: totals.rejected[cause] for cause in Rejection},
-            sync_rejected=sync,
+            e1=totals.e1,
+            rejected=rejected,
+            sync_rejected=sum(self._joined.values()),
             resets=totals.resets,
             wraps=totals.wraps,
             reconnects=self._reconnects,
-            clock=last.clock_state if last is not None else None,
+            clock=decoder.clock_state if self._started is not None else None,
             clock_estimator=self.clock,
             uplink=self.uplink.stats() if self.uplink is not None else None,
-            connected=connection is not None,
+            connected=connected_at is not None,
             round_trip=self.round_trips.summary(),
             round_trip_rejected={cause.value: n for cause, n in trips_rejected.items() if n},
             two_way=clock.two_way if isinstance(clock, TwoWayClockEstimator) else None,
         )
+
+
+def _contiguous(previous: StatePacket, packet: StatePacket) -> bool:
+    """Whether `packet` came right after `previous` in the FC's stream: the same epoch and,
+    with E1, the next `seq` with no frame dropped in between. Otherwise the time between
+    them spans frames that never arrived: no interval of the FC's sampling."""
+    if packet.epoch != previous.epoch:
+        return False
+    if not (packet.e1 and previous.e1):
+        return True
+    return (packet.seq - previous.seq) % SEQ_MODULUS == 1 and packet.drops == previous.drops
 
 
 def _trips_rejected(decoder: StateDecoder) -> Counter[RoundTripRejection]:

@@ -9,7 +9,8 @@ Two MCAP formats, both read by `wftool replay`:
 
 Either way `/fsp/events` holds what the monitor saw, exactly, so `wftool replay` reproduces
 the run's statistics. Files are finished on close, also when the run is interrupted, and
-when the disk fills up (`wftool.verify.mcapfile`).
+when the disk fills up (`wftool.verify.mcapfile`); one whose writer was killed outright is
+read as far as it goes (`RecordingReader`). No file is ever overwritten.
 """
 
 from __future__ import annotations
@@ -18,21 +19,24 @@ import base64
 import csv
 import json
 import math
+import os
 import struct
 import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, TextIO
+from typing import IO, TYPE_CHECKING, Any, TextIO
 
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
+from mcap.records import Channel, Message, Metadata
+from mcap.writer import MCAP0_MAGIC
 
 from wftool import __version__
 from wftool.errors import UsageError
 from wftool.extras import require
 from wftool.fsp import ESTIMATORS, SensorFrame, StatePacket
-from wftool.verify.mcapfile import McapFile, indexed_messages
+from wftool.verify.mcapfile import Cut, LinearReader, McapFile, indexed_messages
 from wftool.verify.monitor import StreamMonitor
 from wftool.verify.ros2 import StreamHealth, decode_event
 from wftool.verify.rosbag import RosbagWriter, bag_file
@@ -140,6 +144,9 @@ class Recorder:
         self._csv_file: TextIO | None = None
         if record_format not in RECORD_FORMATS:
             raise UsageError(f"unknown recording format {record_format!r}: ros2 or json")
+        for path in (csv_path, mcap_path if record_format == "json" else None):
+            if path is not None and path.exists():  # a recording is never overwritten
+                raise UsageError(f"cannot write the recording: {path} already exists")
         try:
             if mcap_path is not None and record_format == "ros2":
                 self._bag = RosbagWriter(mcap_path, METADATA_NAME, metadata)
@@ -149,7 +156,7 @@ class Recorder:
                 self._frame_channel = self._channel(FRAME_TOPIC, FRAME_SCHEMA)
                 self._event_channel = self._channel(EVENT_TOPIC, EVENT_SCHEMA)
             if csv_path is not None:
-                self._csv_file = open(csv_path, "w", newline="")  # noqa: SIM115 - closed in close()
+                self._csv_file = open(csv_path, "x", newline="")  # noqa: SIM115 - closed in close()
                 self._csv = csv.writer(self._csv_file)
                 self._csv.writerow(CSV_COLUMNS)
         except OSError as exc:
@@ -243,21 +250,75 @@ class Recorder:
         self.close()
 
 
-def read_recording(path: Path) -> tuple[dict[str, str], Iterator[Event]]:
-    """The run's metadata and its events in recorded order (either format)."""
-    path = bag_file(path)
-    try:
-        handle = open(path, "rb")  # noqa: SIM115 - closed by the generator
-        reader = make_reader(handle)
-        metadata: dict[str, str] = {}
-        for record in reader.iter_metadata():
-            if record.name == METADATA_NAME:
-                metadata = dict(record.metadata)
-    except (OSError, McapError, ValueError) as exc:
-        raise UsageError(f"cannot read recording {path}: {exc}") from None
+class RecordingReader:
+    """A recording opened for reading, either format: the run's `metadata`, then its
+    `events()` in recorded order. A file whose writer was killed (no summary, no footer)
+    is read as far as it goes (`mcapfile.LinearReader`); once the events are read, `cut`
+    says how far. Anything that is not a recording, or not one as wftool writes them, is a
+    `UsageError` naming the file and what is wrong."""
 
-    def payloads() -> Iterator[tuple[str, bytes]]:
+    def __init__(self, path: Path) -> None:
+        self.path = path = bag_file(path)
+        self.cut: Cut | None = None
+        try:
+            self._handle = open(path, "rb")  # noqa: SIM115 - closed by events()
+        except OSError as exc:
+            raise UsageError(f"cannot read recording {path}: {exc.strerror or exc}") from None
+        try:
+            self._finished = _ends_whole(self._handle)
+            self.metadata = self._metadata()
+        except (McapError, ValueError, EOFError, struct.error) as exc:
+            self._handle.close()
+            reason = str(exc) or type(exc).__name__
+            raise UsageError(f"cannot read recording {path}: {reason}") from None
+
+    def _metadata(self) -> dict[str, str]:
+        metadata: dict[str, str] = {}
+        if self._finished:
+            for record in make_reader(self._handle).iter_metadata():
+                if record.name == METADATA_NAME:
+                    metadata = dict(record.metadata)
+            return metadata
+        for record in LinearReader(self._handle).records():  # written before any message
+            if isinstance(record, Message):
+                break
+            if isinstance(record, Metadata) and record.name == METADATA_NAME:
+                metadata = dict(record.metadata)
+        return metadata
+
+    def events(self) -> Iterator[Event]:
+        """The events, checked: a kind, a finite time, bytes inside a connection."""
+        connected = False
+        with self._handle:
+            try:
+                for encoding, data in self._payloads():
+                    event = _event(encoding, data)
+                    if event.kind in ("connected", "disconnected"):
+                        connected = event.kind == "connected"
+                    elif event.kind == "bytes" and not connected:
+                        raise ValueError("bytes outside a connection")
+                    yield event
+            except (McapError, ValueError, KeyError, IndexError, EOFError, struct.error) as exc:
+                reason = str(exc) or type(exc).__name__
+                raise UsageError(f"recording {self.path} is damaged: {reason}") from None
+
+    def _payloads(self) -> Iterator[tuple[str, bytes]]:
         """(encoding, data) of each event: through the indexes if the file has them."""
+        handle = self._handle
+        if not self._finished:
+            linear = LinearReader(handle)
+            channels: dict[int, Channel] = {}
+            for record in linear.records():
+                if isinstance(record, Channel):
+                    channels[record.id] = record
+                elif isinstance(record, Message):
+                    channel = channels.get(record.channel_id)
+                    if channel is not None and channel.topic == EVENT_TOPIC:
+                        yield channel.message_encoding, record.data
+            self.cut = linear.cut
+            return
+        handle.seek(0)
+        reader = make_reader(handle)
         indexed = indexed_messages(handle, reader.get_summary(), EVENT_TOPIC)
         if indexed is not None:
             encoding, messages = indexed
@@ -267,69 +328,90 @@ def read_recording(path: Path) -> tuple[dict[str, str], Iterator[Event]]:
         for _, channel, message in reader.iter_messages(topics=[EVENT_TOPIC], log_time_order=False):
             yield channel.message_encoding, message.data
 
-    def events() -> Iterator[Event]:
-        with handle:
-            try:
-                for encoding, data in payloads():
-                    if encoding == "cdr":
-                        yield Event(*decode_event(data))
-                        continue
-                    raw = json.loads(data)
-                    yield Event(
-                        raw["kind"],
-                        raw["t"],
-                        base64.b64decode(raw.get("data", "")),
-                        tuple(raw.get("rc", ())),
-                    )
-            except (McapError, ValueError, KeyError, struct.error) as exc:
-                raise UsageError(f"recording {path} is damaged: {exc}") from None
 
-    return metadata, events()
+def _ends_whole(handle: IO[bytes]) -> bool:
+    """Whether the file ends as a finished MCAP does (else it is read linearly)."""
+    handle.seek(0, os.SEEK_END)
+    size = handle.tell()
+    if size == 0:
+        raise ValueError("the file is empty")
+    handle.seek(0)
+    if handle.read(len(MCAP0_MAGIC)) != MCAP0_MAGIC:
+        raise ValueError("not an MCAP file")
+    handle.seek(max(0, size - len(MCAP0_MAGIC)))
+    whole = size >= 2 * len(MCAP0_MAGIC) and handle.read() == MCAP0_MAGIC
+    handle.seek(0)
+    return whole
 
 
-def recording_columns(path: Path, clock: str | None = None) -> list[StateColumns]:
-    """The recorded bytes decoded into columns (needs NumPy), one `StateColumns` per
-    connection: each had its own decoder, and each agrees with it exactly. `clock` None
-    takes the recorded run's estimator."""
+def _event(encoding: str, data: bytes) -> Event:
+    """An event message as recorded (CDR or JSON), or ValueError saying what is wrong."""
+    if encoding == "cdr":
+        kind, t, payload, rc = decode_event(data)
+    else:
+        raw = json.loads(data)
+        if not isinstance(raw, dict):
+            raise ValueError(f"an event is a JSON {type(raw).__name__}, not an object")
+        kind, t, encoded, rc = raw.get("kind"), raw.get("t"), raw.get("data", ""), raw.get("rc", [])
+        if not isinstance(encoded, str):
+            raise ValueError(f"an event's data is {encoded!r}, not base64 text")
+        payload = base64.b64decode(encoded, validate=True)
+        if not isinstance(rc, list):
+            raise ValueError(f"an event's rc is {rc!r}, not a list")
+    if not isinstance(kind, str):
+        raise ValueError(f"an event's kind is {kind!r}")
+    if isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t):
+        raise ValueError(f"an event's time is {t!r}, not a number of seconds")
+    if any(isinstance(v, bool) or not isinstance(v, int) for v in rc):
+        raise ValueError(f"an event's rc is {rc!r}, not whole numbers")
+    return Event(kind, float(t), payload, tuple(rc))
+
+
+def read_recording(path: Path) -> tuple[dict[str, str], Iterator[Event]]:
+    """The run's metadata and its events in recorded order (either format)."""
+    recording = RecordingReader(path)
+    return recording.metadata, recording.events()
+
+
+def recording_columns(path: Path | RecordingReader, clock: str | None = None) -> StateColumns:
+    """The recorded bytes decoded into columns (needs NumPy): what the run's decoder saw,
+    exactly, across its reconnects. `clock` None takes the recorded run's estimator."""
     from wftool.fsp import columns
 
     # Before reading anything: a missing extra is one line, not a late traceback.
     require("analysis", "numpy", what=columns.WHAT)
-    metadata, events = read_recording(path)
-    clock = clock or metadata.get("clock") or ESTIMATORS[0]
-    connections: list[tuple[list[bytes], list[float]]] = []
-    current: tuple[list[bytes], list[float]] | None = None
-    for event in events:
-        if event.kind == "connected":
-            current = ([], [])
-            connections.append(current)
-        elif event.kind == "disconnected":
-            current = None
+    recording = path if isinstance(path, RecordingReader) else RecordingReader(path)
+    events = recording.events()
+    clock = clock or recording.metadata.get("clock") or ESTIMATORS[0]
+    chunks: list[bytes] = []
+    times: list[float] = []
+    connections: list[int] = []
+    for event in events:  # bytes come inside connections (`RecordingReader.events`)
+        if event.kind == "connected" and chunks:
+            connections.append(len(chunks))
         elif event.kind == "bytes":
-            if current is None:
-                raise UsageError(f"recording {path} is damaged: bytes outside a connection")
-            current[0].append(event.data)
-            current[1].append(event.t)
-    return [
-        columns.decode_columns(b"".join(chunks), list(map(len, chunks)), times, clock=clock)
-        for chunks, times in connections
-    ]
+            chunks.append(event.data)
+            times.append(event.t)
+    return columns.decode_columns(
+        b"".join(chunks), list(map(len, chunks)), times, clock=clock, connections=connections
+    )
 
 
 def replay_recording(
-    path: Path, expected_rate_hz: float | None = None, clock: str | None = None
+    path: Path | RecordingReader, expected_rate_hz: float | None = None, clock: str | None = None
 ) -> StreamMonitor:
     """A monitor that has seen exactly what the recorded run saw; `clock` None takes the
     recorded run's estimator."""
-    metadata, events = read_recording(path)
+    recording = path if isinstance(path, RecordingReader) else RecordingReader(path)
+    metadata = recording.metadata
     if expected_rate_hz is None and metadata.get("expected_rate_hz"):
-        expected_rate_hz = float(metadata["expected_rate_hz"])
+        expected_rate_hz = _rate(recording.path, metadata["expected_rate_hz"])
     uplink = UplinkTracker() if metadata.get("uplink_rate_hz") else None
     clock = clock or metadata.get("clock") or ESTIMATORS[0]
     monitor = StreamMonitor(
-        metadata.get("port", str(path)), expected_rate_hz, uplink=uplink, clock=clock
+        metadata.get("port", str(recording.path)), expected_rate_hz, uplink=uplink, clock=clock
     )
-    for event in events:
+    for event in recording.events():
         if event.kind == "connected":
             monitor.connected(event.t)
         elif event.kind == "disconnected":
@@ -339,3 +421,13 @@ def replay_recording(
         elif event.kind == "command":
             monitor.command_sent(event.rc, event.t)
     return monitor
+
+
+def _rate(path: Path, text: str) -> float:
+    try:
+        rate = float(text)
+    except ValueError:
+        rate = math.nan
+    if not (math.isfinite(rate) and rate > 0):
+        raise UsageError(f"recording {path} is damaged: its expected rate {text!r} is no rate")
+    return rate

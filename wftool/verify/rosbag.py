@@ -103,7 +103,7 @@ class RosbagWriter:
             raise UsageError(f"cannot write the recording: {exc}") from None
         self._out: McapFile | None = None
         try:
-            self._out = McapFile(self.mcap_path, "ros2", f"wftool {__version__}", replace=False)
+            self._out = McapFile(self.mcap_path, "ros2", f"wftool {__version__}")
             self._channels = {
                 topic: self._out.register_channel(
                     topic, "cdr", self._out.register_schema(kind.name, "ros2msg", kind.schema_bytes)

@@ -23,11 +23,18 @@ from wftool.errors import VerificationFailed
 from wftool.fc.msp import MspClient
 from wftool.fsp import DEFAULT_BAUDRATE, ESTIMATORS, SensorFrame, StatePacket
 from wftool.fsp.schedule import frame_rate_hz
+from wftool.interrupts import stop_on_signals
 from wftool.verify.criteria import Criteria, Verdict, judge
 from wftool.verify.foxglove import DEFAULT_HOST, FoxgloveLive
 from wftool.verify.live import LiveOptions, run_live
 from wftool.verify.monitor import StreamMonitor, StreamSummary
-from wftool.verify.recording import RECORD_FORMATS, Recorder, replay_recording, run_metadata
+from wftool.verify.recording import (
+    RECORD_FORMATS,
+    Recorder,
+    RecordingReader,
+    replay_recording,
+    run_metadata,
+)
 from wftool.verify.uplink import UplinkTracker
 
 
@@ -46,6 +53,7 @@ def criteria_for(
     max_loss_pct: float | None = None,
     max_drops_pct: float | None = None,
     max_errors: int | None = None,
+    max_outage_s: float | None = None,
 ) -> Criteria:
     """The criteria for a user's limits: a limit left at None takes the default. A board and
     the virtual FC are judged alike."""
@@ -60,6 +68,7 @@ def criteria_for(
         max_loss_pct=pick(max_loss_pct, defaults.max_loss_pct),
         max_drops_pct=pick(max_drops_pct, defaults.max_drops_pct),
         max_errors=pick(max_errors, defaults.max_errors),
+        max_outage_s=pick(max_outage_s, defaults.max_outage_s),
         uplink=uplink,
     )
 
@@ -136,14 +145,18 @@ class VerifySession:
         on_packets: Callable[[Sequence[StatePacket], float], None] | None = None,
     ) -> VerifyResult:
         """Verify until the duration is up or `stop` is set; `on_refresh` gets a summary
-        four times a second. Ctrl-C propagates: `result()` then judges what was seen."""
-        try:
-            summary = run_live(
-                self.options, self.monitor, self._recorder, on_refresh, stop,
-                on_packets=on_packets, live_view=self.live_view,
-            )  # fmt: skip
-        finally:
-            self.close()
+        four times a second. On the main thread SIGINT, SIGTERM and SIGHUP stop the run
+        where it can stop (`wftool.interrupts`): the recording is finished, then the signal
+        propagates (`KeyboardInterrupt`, `Terminated`) and `result()` judges what was seen."""
+        stop = stop if stop is not None else threading.Event()
+        with stop_on_signals(stop):
+            try:
+                summary = run_live(
+                    self.options, self.monitor, self._recorder, on_refresh, stop,
+                    on_packets=on_packets, live_view=self.live_view,
+                )  # fmt: skip
+            finally:
+                self.close()
         return self.result(summary)
 
     def close(self) -> None:
@@ -176,7 +189,12 @@ def replay(
     an MCAP file), computed again. The uplink is judged
     when the recorded run sent it, whatever `criteria.uplink` says; `clock` None uses the
     recorded run's estimator."""
-    monitor = replay_recording(path, expected_rate_hz, clock)
+    recording = RecordingReader(path)
+    monitor = replay_recording(recording, expected_rate_hz, clock)
     criteria = replace(criteria or Criteria(), uplink=monitor.uplink is not None)
     summary = monitor.summary()
-    return VerifyResult(summary, judge(summary, criteria), monitor.latest)
+    verdict = judge(summary, criteria)
+    if recording.cut is not None:  # judged as far as it goes; the end of the run is missing
+        note = f"recording {recording.path.name} was {recording.cut.describe()}"
+        verdict = replace(verdict, notes=(*verdict.notes, note))
+    return VerifyResult(summary, verdict, monitor.latest)
