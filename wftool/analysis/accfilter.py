@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import json
 import statistics
+import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -29,9 +30,17 @@ from pathlib import Path
 import numpy as np
 from scipy import signal
 
+from wftool import __version__
+from wftool.analysis import sources
 from wftool.analysis.flight import BAND_HZ, HARMONICS, Flight, FlightSpec, synthesize
-from wftool.analysis.harness import FilterSettings, HostHarness
-from wftool.analysis.m7 import CLOCK_HZ, LONG_INSTRUCTIONS, M7Harness
+from wftool.analysis.harness import (
+    FilterSettings,
+    HostHarness,
+    compile_host_library,
+    host_flags,
+)
+from wftool.analysis.m7 import CLOCK_HZ, LONG_INSTRUCTIONS, M7_FLAGS, M7Harness, build_image
+from wftool.analysis.spectrum import Panel, write_series
 
 SETTLE_S = 0.5
 """Samples before this are left out of every figure (the filter starts from rest)."""
@@ -605,3 +614,63 @@ def write_report(evaluation: Evaluation, out_dir: Path) -> tuple[Path, Path]:
     markdown.write_text(render_markdown(evaluation))
     data.write_text(json.dumps(evaluation.as_json(), indent=2) + "\n")
     return markdown, data
+
+
+def run(
+    project_dir: Path | None,
+    settings: Sequence[FilterSettings],
+    rates: Sequence[int],
+    spec: FlightSpec,
+    out_dir: Path,
+    *,
+    repeat: int = 9,
+    with_m7: bool = True,
+    progress: Callable[[str], None] = lambda message: None,
+) -> tuple[Evaluation, list[Path]]:
+    """`wftool analyze accfilter` as a call: the series' filter code (betaflight/ of the
+    project, fetched and patched if needed) compiled for the host (and, `with_m7`, the
+    Cortex-M7), evaluated, and written to `out_dir`: the report (.md, .json), then one
+    acceleration series (.npz, `wftool.analysis.spectrum`) per rate, before and after the
+    first configuration's filter. Returns the evaluation and the paths written."""
+    tree = sources.patched_tree(project_dir)
+    with tempfile.TemporaryDirectory(prefix="wftool-accfilter-") as scratch:
+        filter_sources = sources.filter_sources(tree, Path(scratch))
+        harness = HostHarness(compile_host_library(filter_sources, Path(scratch) / "host"))
+        provenance: dict[str, object] = {
+            "wftool": __version__,
+            "betaflight revision": filter_sources.revision,
+            "filter sources": ", ".join(str(p.relative_to(tree)) for p in filter_sources.sources),
+            "filter sources sha256": filter_sources.sha256,
+            "host flags": " ".join(host_flags(filter_sources)),
+        }
+        m7 = None
+        if with_m7:
+            gcc = sources.arm_gcc(project_dir)
+            m7 = M7Harness(build_image(filter_sources, Path(scratch) / "m7", gcc))
+            provenance["m7 flags"] = " ".join(
+                [*M7_FLAGS, *(f"-D{d}" for d in filter_sources.defines)]
+            )
+            provenance["m7 compiler"] = f"{gcc} {m7.image.gcc_version}"
+        evaluation = evaluate(
+            harness, settings, rates, spec,
+            m7=m7, repeat=repeat, provenance=provenance, progress=progress,
+        )  # fmt: skip
+    written = list(write_report(evaluation, out_dir))
+    first = settings[0]
+    for rate, flight in evaluation.flights.items():
+        path = out_dir / f"flight-{rate}hz.npz"
+        write_series(
+            path,
+            flight.time_s,
+            flight.motor_hz,
+            [
+                Panel("raw", f"before the RPM filter ({rate} Hz)", flight.raw),
+                Panel(
+                    "filtered",
+                    f"after the RPM filter ({first.name}: {first.describe()})",
+                    evaluation.filtered[(first.name, rate)],
+                ),
+            ],
+        )
+        written.append(path)
+    return evaluation, written

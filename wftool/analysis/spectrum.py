@@ -301,7 +301,7 @@ def draw(series: AccSeries, spec: Spectrogram, out: Path) -> None:
         ax.set_title(panel.title, fontsize=10)
         ax.set_ylabel("frequency (Hz)")
         ax.set_ylim(0, spec.frequencies_hz[-1])
-        if index == 0 and series.motor_hz.shape[1]:
+        if index == 0 and np.any(series.motor_hz > 0):
             ax.legend(loc="upper left", fontsize=8, framealpha=0.6)
     axes[-1].set_xlabel("time (s)")
     axes[-1].set_xlim(series.time_s[0], series.time_s[-1])

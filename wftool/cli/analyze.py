@@ -7,7 +7,7 @@ imports happen inside the commands, so `wftool --help` never pays for them.
 from __future__ import annotations
 
 import sys
-import tempfile
+from collections.abc import Sequence
 from pathlib import Path
 
 import click
@@ -119,78 +119,25 @@ def accfilter_command(
     counts its instructions on an emulated Cortex-M7 built with Betaflight's F7 flags.
     """
     require("analysis", *PLOTTING, *(() if no_m7 else EMULATOR), what="analyze accfilter")
-    from wftool import __version__
-    from wftool.analysis import accfilter, sources
+    from wftool.analysis import accfilter
     from wftool.analysis.flight import FlightSpec
-    from wftool.analysis.harness import (
-        FilterSettings,
-        HostHarness,
-        compile_host_library,
-        host_flags,
-    )
-    from wftool.analysis.m7 import M7_FLAGS, M7Harness, build_image
-    from wftool.analysis.spectrum import Panel, write_series
+    from wftool.analysis.harness import FilterSettings
 
     settings = [FilterSettings.parse(text) for text in configs] or list(PRESETS.values())
     names = [s.name for s in settings]
     if len(set(names)) != len(names):
         raise click.BadParameter("configuration names must differ", param_hint="--config")
-    rate_list = list(dict.fromkeys(rates or (800, 1000)))
-    tree = sources.patched_tree(project_dir)
-    with tempfile.TemporaryDirectory(prefix="wftool-accfilter-") as scratch:
-        filter_sources = sources.filter_sources(tree, Path(scratch))
-        harness = HostHarness(compile_host_library(filter_sources, Path(scratch) / "host"))
-        provenance: dict[str, object] = {
-            "wftool": __version__,
-            "betaflight revision": filter_sources.revision,
-            "filter sources": ", ".join(str(p.relative_to(tree)) for p in filter_sources.sources),
-            "filter sources sha256": filter_sources.sha256,
-            "host flags": " ".join(host_flags(filter_sources)),
-        }
-        m7 = None
-        if not no_m7:
-            gcc = sources.arm_gcc(project_dir)
-            m7 = M7Harness(build_image(filter_sources, Path(scratch) / "m7", gcc))
-            provenance["m7 flags"] = " ".join(
-                [*M7_FLAGS, *(f"-D{d}" for d in filter_sources.defines)]
-            )
-            provenance["m7 compiler"] = f"{gcc} {m7.image.gcc_version}"
-        evaluation = accfilter.evaluate(
-            harness,
-            settings,
-            rate_list,
-            FlightSpec(duration_s=duration),
-            m7=m7,
-            repeat=repeat,
-            provenance=provenance,
-            progress=lambda message: err.print(message, style="dim", markup=False),
-        )
-    markdown, data = accfilter.write_report(evaluation, out_dir)
-    written = [markdown, data]
-    first = settings[0].name
-    for rate, flight in evaluation.flights.items():
-        path = out_dir / f"flight-{rate}hz.npz"
-        write_series(
-            path,
-            flight.time_s,
-            flight.motor_hz,
-            [
-                Panel("raw", f"before the RPM filter ({rate} Hz)", flight.raw),
-                Panel(
-                    "filtered",
-                    f"after the RPM filter ({first}: {settings[0].describe()})",
-                    evaluation.filtered[(first, rate)],
-                ),
-            ],
-        )
-        written.append(path)
-    rows = accfilter.summary_rows(evaluation)
-    table = Table(box=None, pad_edge=False)
-    for column in rows[0]:
-        table.add_column(column, justify="left" if column == "config" else "right")
-    for row in rows:
-        table.add_row(*row.values())
-    out.print(table)
+    evaluation, written = accfilter.run(
+        project_dir,
+        settings,
+        list(dict.fromkeys(rates or (800, 1000))),
+        FlightSpec(duration_s=duration),
+        out_dir,
+        repeat=repeat,
+        with_m7=not no_m7,
+        progress=lambda message: err.print(message, style="dim", markup=False),
+    )
+    print_table(accfilter.summary_rows(evaluation), left=1)
     check = evaluation.m7_check
     if check:
         out.print(
@@ -200,6 +147,63 @@ def accfilter_command(
         )
     out.print(f"wrote {', '.join(str(path) for path in written)}")
     out.print(f"Fig. 4 of a flight: wftool analyze spectrum {written[2]}")
+
+
+@analyze_group.command(
+    "timing", short_help="Table 1, Figs. 2-3: sample-interval statistics of recordings."
+)
+@click.argument("recordings", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option(
+    "--out",
+    "out_dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=Path("timing"),
+    show_default=True,
+    help="Directory for timing.md, timing.json, fig2-histograms.png, fig3-intervals.png.",
+)
+@click.option(
+    "--expected-rate",
+    type=click.FloatRange(min=0, min_open=True),
+    metavar="HZ",
+    help="The rate the samples should come at [what each recording says].",
+)
+@click.option("--paper", is_flag=True, help="Add the paper's published rows for comparison.")
+def timing_command(
+    recordings: tuple[Path, ...], out_dir: Path, expected_rate: float | None, paper: bool
+) -> None:
+    """Table 1 and Figs. 2-3: the intervals between consecutive samples of each recording.
+
+    FSP (a verify --record recording or a raw capture of the FSP port): the FC's sample
+    times. MSP (a record msp recording): the reception times of MSP_RAW_IMU replies. A
+    recording cut by a reconnection, an FC reset or a gap is analysed in its longest
+    segment (the table says so; the JSON has every segment).
+    """
+    require("analysis", "numpy", "matplotlib", what="analyze timing")
+    from wftool.analysis import timing
+
+    series = [timing.load_timing(path, expected_rate) for path in recordings]
+    print_table(timing.table_rows(series, paper), timing.table_notes(series, paper))
+    written = list(timing.write_table(series, out_dir, "timing", paper))
+    for name, draw in (
+        ("fig2-histograms.png", timing.draw_histograms),
+        ("fig3-intervals.png", timing.draw_intervals),
+    ):
+        draw(series, out_dir / name)
+        written.append(out_dir / name)
+    out.print(f"wrote {', '.join(str(path) for path in written)}")
+
+
+def print_table(rows: list[dict[str, str]], notes: Sequence[str] = (), left: int = 2) -> None:
+    """Rows (column -> text) as a table on stdout, the first `left` columns left-aligned
+    and the rest (numbers) right-aligned; then the notes."""
+    table = Table(box=None, pad_edge=False)
+    for index, column in enumerate(rows[0]):
+        table.add_column(column, justify="left" if index < left else "right")
+    for row in rows:
+        table.add_row(*row.values())
+    out.print(table)
+    for note in notes:
+        out.print(f"note: {note}", soft_wrap=True)
 
 
 COMMANDS: list[click.Command] = [analyze_group]

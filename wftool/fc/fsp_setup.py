@@ -7,8 +7,9 @@
 - The receiver: FSP's uplink feeds Betaflight's MSP receiver, so feature RX_MSP must be the
   receiver. The 2025.12 CLI cannot name RX_MSP, so it is switched over MSP.
 - `dshot_bidir = ON` (motor RPM for the RPM filters), the accelerometer RPM-filter defaults,
-  `fsp_rate_hz`, and `serial_update_rate_hz` at the highest value the FC allows (it sets
-  how often the serial task drains the uplink; the stock default is 100 Hz).
+  `fsp_rate_hz`, and `serial_update_rate_hz` at the highest value the FC allows unless told
+  otherwise (it sets how often the serial task drains the uplink and answers MSP; the stock
+  default is 100 Hz).
 - On request, `fsp_time_reply` (two-way timing, spec §10): the FC answers each command with
   a time reply. Left as it is unless asked for.
 """
@@ -69,10 +70,15 @@ def function_names(mask: int) -> str:
 
 
 def fsp_planner(
-    uart: int, baud: int, rate_hz: int = DEFAULT_RATE_HZ, time_reply: bool | None = None
+    uart: int,
+    baud: int,
+    rate_hz: int = DEFAULT_RATE_HZ,
+    time_reply: bool | None = None,
+    serial_update_rate_hz: int | None = None,
 ) -> Planner:
     """A planner (see `wftool.fc.params.apply_plan`) for FSP on UART`uart` at `baud`;
-    `time_reply` sets `fsp_time_reply` (None: leave it)."""
+    `time_reply` sets `fsp_time_reply` (None: leave it); `serial_update_rate_hz` None sets
+    the highest the FC allows."""
 
     def plan(session: CliSession) -> Plan:
         ports = {
@@ -113,8 +119,9 @@ def fsp_planner(
         commands.append(set_command("fsp_rate_hz", str(rate_hz)))
         if time_reply is not None:
             commands.append(set_command("fsp_time_reply", "ON" if time_reply else "OFF"))
-        update_rate = session.get("serial_update_rate_hz").int_range
-        if update_rate:
+        if serial_update_rate_hz is not None:
+            commands.append(set_command("serial_update_rate_hz", str(serial_update_rate_hz)))
+        elif update_rate := session.get("serial_update_rate_hz").int_range:
             commands.append(set_command("serial_update_rate_hz", str(update_rate[1])))
         receiver = FeatureChange(enable=FEATURE_RX_MSP, disable=RECEIVER_FEATURES & ~FEATURE_RX_MSP)
         return Plan(commands, receiver, notes)

@@ -148,6 +148,35 @@ def decode_frame(buffer: bytes) -> tuple[MspFrame | None, int]:
     return MspFrame(cmd, bytes(frame[header:end]), direction == b"!"), start + end + 1
 
 
+class FrameReader:
+    """The frames in a byte stream that arrives in pieces (a poller's reads, a recording).
+
+    Bytes between frames are dropped; a frame whose checksum fails is counted in
+    `corrupt` and skipped, and reading goes on from the next `$`.
+    """
+
+    def __init__(self) -> None:
+        self._rx = bytearray()
+        self.corrupt = 0
+
+    def feed(self, data: bytes) -> list[MspFrame]:
+        """The frames `data` completes, in order."""
+        rx = self._rx
+        rx += data
+        frames = []
+        while True:
+            try:
+                frame, used = decode_frame(bytes(rx))
+            except MspError:
+                self.corrupt += 1
+                del rx[: rx.find(b"$") + 1]  # past the bad frame's start
+                continue
+            del rx[:used]
+            if frame is None:
+                return frames
+            frames.append(frame)
+
+
 class _Fields:
     """Sequential little-endian reader over a reply payload; short payloads raise MspError."""
 
@@ -358,28 +387,21 @@ class MspClient:
             raise MspError(f"the FC did not acknowledge reboot mode {mode.name}")
 
     def raw_imu(self) -> RawImu:
-        values = _Fields(Cmd.RAW_IMU, self.request(Cmd.RAW_IMU)).unpack("9h")
-        return RawImu(acc=values[0:3], gyro=values[3:6], mag=values[6:9])  # type: ignore[arg-type]
+        return parse_raw_imu(self.request(Cmd.RAW_IMU))
 
     def attitude(self) -> Attitude:
-        roll, pitch, yaw = _Fields(Cmd.ATTITUDE, self.request(Cmd.ATTITUDE)).unpack("hhh")
-        return Attitude(roll_deg=roll / 10, pitch_deg=pitch / 10, yaw_deg=float(yaw))
+        return parse_attitude(self.request(Cmd.ATTITUDE))
 
     def rc(self) -> tuple[int, ...]:
         """The RC channel values the FC currently uses (µs), in its channel order."""
-        payload = self.request(Cmd.RC)
-        return _Fields(Cmd.RC, payload).unpack(f"{len(payload) // 2}H")
+        return parse_rc(self.request(Cmd.RC))
 
     def set_raw_rc(self, channels: Sequence[int]) -> None:
         """Feed RC channels through the MSP receiver (effective only with RX_MSP enabled)."""
         self.request(Cmd.SET_RAW_RC, struct.pack(f"<{len(channels)}H", *channels))
 
     def analog(self) -> Analog:
-        fields = _Fields(Cmd.ANALOG, self.request(Cmd.ANALOG))
-        _legacy_vbat, mah_drawn, rssi, centiamps, centivolts = fields.unpack("BHHhH")
-        return Analog(
-            voltage_v=centivolts / 100, mah_drawn=mah_drawn, rssi=rssi, current_a=centiamps / 100
-        )
+        return parse_analog(self.request(Cmd.ANALOG))
 
     def pid_cycle_us(self) -> int:
         """The PID loop period the FC measures (MSP_STATUS); 0 while the loop does not run."""
@@ -392,6 +414,32 @@ class MspClient:
     def set_features(self, mask: int) -> None:
         """Replace the configured feature mask in RAM (persisted by the next CLI `save`)."""
         self.request(Cmd.SET_FEATURE_CONFIG, struct.pack("<I", mask))
+
+
+# The replies a poller receives on its own (`wftool.fc.msp_poller`) are parsed here too.
+
+
+def parse_raw_imu(payload: bytes) -> RawImu:
+    values = _Fields(Cmd.RAW_IMU, payload).unpack("9h")
+    return RawImu(acc=values[0:3], gyro=values[3:6], mag=values[6:9])  # type: ignore[arg-type]
+
+
+def parse_attitude(payload: bytes) -> Attitude:
+    roll, pitch, yaw = _Fields(Cmd.ATTITUDE, payload).unpack("hhh")
+    return Attitude(roll_deg=roll / 10, pitch_deg=pitch / 10, yaw_deg=float(yaw))
+
+
+def parse_rc(payload: bytes) -> tuple[int, ...]:
+    return _Fields(Cmd.RC, payload).unpack(f"{len(payload) // 2}H")
+
+
+def parse_analog(payload: bytes) -> Analog:
+    _legacy_vbat, mah_drawn, rssi, centiamps, centivolts = _Fields(Cmd.ANALOG, payload).unpack(
+        "BHHhH"
+    )
+    return Analog(
+        voltage_v=centivolts / 100, mah_drawn=mah_drawn, rssi=rssi, current_a=centiamps / 100
+    )
 
 
 def _command_name(cmd: int) -> str:

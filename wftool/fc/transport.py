@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import re
+import select
 from collections.abc import Iterator
 from dataclasses import dataclass
 from urllib.parse import urlsplit
@@ -63,6 +64,32 @@ def port_errors(url: str) -> Iterator[None]:
         yield
     except (serial.SerialException, OSError) as exc:
         raise PortError(f"lost connection to {url}: {_reason(exc)}") from exc
+
+
+_READ_SIZE = 1 << 16
+
+
+def selectable_fd(port: serial.SerialBase) -> int | None:
+    """The port's descriptor for `select`, or None where it has none (rfc2217://)."""
+    try:
+        return port.fileno()
+    except (AttributeError, NotImplementedError, OSError, serial.SerialException):
+        return None
+
+
+def read_within(port: serial.SerialBase, fd: int | None, timeout: float) -> bytes:
+    """What arrives on `port` within `timeout` seconds; returns as soon as anything did.
+
+    `fd` is `selectable_fd(port)`: with it, the wait is a `select` and the port may be
+    opened with `timeout=0`; without it, the port's read timeout is set for the wait. The
+    caller turns I/O errors into `PortError` (`port_errors`).
+    """
+    if fd is not None:
+        ready, _, _ = select.select([fd], [], [], max(0.0, timeout))
+        return port.read(_READ_SIZE) if ready else b""
+    port.timeout = max(0.0, timeout)
+    data = port.read(1)
+    return data + port.read(port.in_waiting) if data else data
 
 
 def url_problem(url: str) -> str | None:

@@ -17,7 +17,6 @@ ON) the commands it sends are paired with the FC's time replies (spec §10).
 
 from __future__ import annotations
 
-import select
 import time
 from collections.abc import Callable, Iterator, Sequence
 from types import TracebackType
@@ -26,14 +25,13 @@ from typing import TypeVar
 import serial
 
 from wftool.errors import PortError
-from wftool.fc.transport import open_port, port_errors
+from wftool.fc.transport import open_port, port_errors, read_within, selectable_fd
 from wftool.fsp.decoder import StateDecoder
 from wftool.fsp.encoder import CommandSender, encode_command
 from wftool.fsp.packets import CommandPacket, SensorFrame, StatePacket
 
 DEFAULT_BAUDRATE = 2_000_000
 """The FSP baud rate wftool assumes unless told otherwise (`verify`, the virtual FC)."""
-_READ_SIZE = 1 << 16
 _Port = TypeVar("_Port", bound="FspPort")
 
 
@@ -57,10 +55,7 @@ class FspPort:
     def open(self: _Port) -> _Port:
         port = open_port(self.url, self.baudrate, timeout=0)  # reads never block: see read_bytes
         self._port = port
-        try:
-            self._fd = port.fileno()
-        except (AttributeError, NotImplementedError, OSError, serial.SerialException):
-            self._fd = None  # no selectable descriptor (rfc2217): poll with a read timeout
+        self._fd = selectable_fd(port)  # None (rfc2217): poll with a read timeout
         return self
 
     def close(self) -> None:
@@ -89,12 +84,7 @@ class FspPort:
         """What arrived within `timeout` seconds (returns as soon as anything did)."""
         port = self.port
         with port_errors(self.url):
-            if self._fd is not None:
-                ready, _, _ = select.select([self._fd], [], [], timeout)
-                return port.read(_READ_SIZE) if ready else b""
-            port.timeout = timeout
-            data = port.read(1)
-            return data + port.read(port.in_waiting) if data else data
+            return read_within(port, self._fd, timeout)
 
     def send_command(self, rc: Sequence[int], now: float | None = None) -> CommandPacket:
         """Send RC values (roll, pitch, yaw, throttle, aux3, aux4) to the FC, stamped with OBC

@@ -131,14 +131,17 @@ class VirtualFcSession:
         motion: Motion | None = None,
         port_base: int | None = DEFAULT_PORT_BASE,
         time_reply: bool = False,
+        serial_update_rate_hz: int | None = None,
     ) -> None:
         """`time_reply`: the FC answers each command with a time reply (spec §10);
-        `port_base=None`: any free ports (see `VirtualFC`)."""
+        `port_base=None`: any free ports (see `VirtualFC`); `serial_update_rate_hz` None:
+        the highest the FC allows (as `configure fsp`)."""
         self.fc = VirtualFC(binary, workdir, port_base=port_base)
         self.workdir = workdir
         self._baud = baud
         self.rate_hz = rate_hz
         self.time_reply = time_reply
+        self.serial_update_rate_hz = serial_update_rate_hz
         self._motion = motion
         self._feeder: MotionFeeder | None = None
 
@@ -159,11 +162,10 @@ class VirtualFcSession:
     def start(self) -> VirtualFcSession:
         self.fc.start()
         try:
-            apply_plan(
-                self.fc,
-                fsp_planner(FSP_UART, self._baud, self.rate_hz, self.time_reply),
-                self.workdir / "backups",
+            planner = fsp_planner(
+                FSP_UART, self._baud, self.rate_hz, self.time_reply, self.serial_update_rate_hz
             )
+            apply_plan(self.fc, planner, self.workdir / "backups")
             if self._motion is not None:  # the ports are known once the FC runs
                 self._feeder = MotionFeeder(self._motion, self.fc.sim_state_port)
                 self._feeder.start()

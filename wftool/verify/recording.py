@@ -255,10 +255,18 @@ class RecordingReader:
     `events()` in recorded order. A file whose writer was killed (no summary, no footer)
     is read as far as it goes (`mcapfile.LinearReader`); once the events are read, `cut`
     says how far. Anything that is not a recording, or not one as wftool writes them, is a
-    `UsageError` naming the file and what is wrong."""
+    `UsageError` naming the file and what is wrong.
 
-    def __init__(self, path: Path) -> None:
+    The FSP stream's events and metadata by default; another recording's by `topic` and
+    `metadata_name` (the MSP baseline's, `wftool.verify.msp_recording`). A file without
+    `topic` is refused: it is a recording of another kind. `topic` None opens it only to
+    look (`topics`, `metadata`; `recording_topics`)."""
+
+    def __init__(
+        self, path: Path, topic: str | None = EVENT_TOPIC, metadata_name: str = METADATA_NAME
+    ) -> None:
         self.path = path = bag_file(path)
+        self.topic, self.metadata_name = topic, metadata_name
         self.cut: Cut | None = None
         try:
             self._handle = open(path, "rb")  # noqa: SIM115 - closed by events()
@@ -267,22 +275,46 @@ class RecordingReader:
         try:
             self._finished = _ends_whole(self._handle)
             self.metadata = self._metadata()
+            self.topics = self._topics()
         except (McapError, ValueError, EOFError, struct.error) as exc:
             self._handle.close()
             reason = str(exc) or type(exc).__name__
             raise UsageError(f"cannot read recording {path}: {reason}") from None
+        if topic is not None and topic not in self.topics:
+            self._handle.close()
+            raise UsageError(f"{path} has no {topic} topic: not a recording this command reads")
+
+    def close(self) -> None:
+        """Close the file without reading the events (`events()` closes it when done)."""
+        self._handle.close()
+
+    def _topics(self) -> set[str]:
+        """The topics the file has channels for: from its summary, else from the channels
+        written before its first message (wftool registers every channel at the start)."""
+        if self._finished:
+            summary = make_reader(self._handle).get_summary()
+            self._handle.seek(0)
+            if summary is not None:
+                return {channel.topic for channel in summary.channels.values()}
+        topics = set()
+        for record in LinearReader(self._handle).records():
+            if isinstance(record, Message):
+                break
+            if isinstance(record, Channel):
+                topics.add(record.topic)
+        return topics
 
     def _metadata(self) -> dict[str, str]:
         metadata: dict[str, str] = {}
         if self._finished:
             for record in make_reader(self._handle).iter_metadata():
-                if record.name == METADATA_NAME:
+                if record.name == self.metadata_name:
                     metadata = dict(record.metadata)
             return metadata
         for record in LinearReader(self._handle).records():  # written before any message
             if isinstance(record, Message):
                 break
-            if isinstance(record, Metadata) and record.name == METADATA_NAME:
+            if isinstance(record, Metadata) and record.name == self.metadata_name:
                 metadata = dict(record.metadata)
         return metadata
 
@@ -313,19 +345,19 @@ class RecordingReader:
                     channels[record.id] = record
                 elif isinstance(record, Message):
                     channel = channels.get(record.channel_id)
-                    if channel is not None and channel.topic == EVENT_TOPIC:
+                    if channel is not None and channel.topic == self.topic:
                         yield channel.message_encoding, record.data
             self.cut = linear.cut
             return
         handle.seek(0)
         reader = make_reader(handle)
-        indexed = indexed_messages(handle, reader.get_summary(), EVENT_TOPIC)
+        indexed = indexed_messages(handle, reader.get_summary(), self.topic)
         if indexed is not None:
             encoding, messages = indexed
             for data in messages:
                 yield encoding, data
             return
-        for _, channel, message in reader.iter_messages(topics=[EVENT_TOPIC], log_time_order=False):
+        for _, channel, message in reader.iter_messages(topics=[self.topic], log_time_order=False):
             yield channel.message_encoding, message.data
 
 
@@ -365,6 +397,13 @@ def _event(encoding: str, data: bytes) -> Event:
     if any(isinstance(v, bool) or not isinstance(v, int) for v in rc):
         raise ValueError(f"an event's rc is {rc!r}, not whole numbers")
     return Event(kind, float(t), payload, tuple(rc))
+
+
+def recording_topics(path: Path) -> set[str]:
+    """The topics a recording (a bag directory or an MCAP file) has channels for: its kind."""
+    recording = RecordingReader(path, topic=None)
+    recording.close()
+    return recording.topics
 
 
 def read_recording(path: Path) -> tuple[dict[str, str], Iterator[Event]]:

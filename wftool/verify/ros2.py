@@ -149,6 +149,11 @@ uint64 rejected_chunks
 uint32 resets
 uint32 reconnects
 """
+MSP_RC_MSG = """\
+# The RC channels an MSP_RC reply carries (µs-style, 1000-2000), in the FC's channel order.
+std_msgs/Header header
+uint16[] channels
+"""
 STREAM_EVENT_MSG = """\
 # What the verify loop saw, exactly: `wftool replay` feeds these back.
 uint8 CONNECTED = 0
@@ -195,6 +200,7 @@ MOTOR_RPM = _message_type("wftool_msgs/msg/MotorRpm", MOTOR_RPM_MSG, *_HEADER_US
 ATTITUDE = _message_type("wftool_msgs/msg/Attitude", ATTITUDE_MSG, *_HEADER_USES)
 STREAM_HEALTH = _message_type("wftool_msgs/msg/StreamHealth", STREAM_HEALTH_MSG, *_HEADER_USES)
 STREAM_EVENT = _message_type("wftool_msgs/msg/StreamEvent", STREAM_EVENT_MSG)
+MSP_RC = _message_type("wftool_msgs/msg/MspRc", MSP_RC_MSG, *_HEADER_USES)
 
 EVENT_KINDS = ("connected", "disconnected", "bytes", "command")
 """`StreamEvent.kind` values in order (CONNECTED = 0, ...)."""
@@ -285,6 +291,7 @@ _RC = struct.Struct("<4s" + _HEADER + "x6h")
 _RPM = struct.Struct("<4s" + _HEADER + "x4H")
 _ATTITUDE = struct.Struct("<4s" + _HEADER + "x3d")
 _HEALTH = struct.Struct("<4s" + _HEADER + "x2I3?5x6Q2I")
+_MSP_RC_HEAD = struct.Struct("<4s" + _HEADER + "xI")
 _EVENT_HEAD = struct.Struct("<4sdB3xI")
 _COUNT = struct.Struct("<I")
 _FRAME_ID = FRAME_ID.encode() + b"\0"
@@ -357,19 +364,11 @@ class FrameEncoder:
 
     @staticmethod
     def attitude(frame: SensorFrame, stamp_ns: int) -> bytes:
-        sec, nsec = divmod(stamp_ns, 1_000_000_000)
-        return _ATTITUDE.pack(CDR_LE, sec, nsec, 3, _FRAME_ID, *frame.euler_deg)
+        return attitude_message(stamp_ns, *frame.euler_deg)
 
     @staticmethod
     def battery(frame: SensorFrame, stamp_ns: int) -> bytes:
-        sec, nsec = divmod(stamp_ns, 1_000_000_000)
-        return _BATTERY.pack(
-            CDR_LE, sec, nsec, 3, _FRAME_ID,
-            frame.values[23] / 100.0, *_BATTERY_UNMEASURED,
-            0, 0, 0, True,  # status, health, technology unknown; present
-            0, 0,  # no cell voltages or temperatures
-            1, _EMPTY, 1, _EMPTY,  # location, serial number
-        )  # fmt: skip
+        return battery_message(stamp_ns, frame.values[23] / 100.0)
 
     def health(self, health: StreamHealth) -> bytes:
         sec, nsec = divmod(self.stamp_ns(health.t), 1_000_000_000)
@@ -379,6 +378,54 @@ class FrameEncoder:
             health.packets, health.frames, health.lost_frames, health.lost_packets,
             health.fc_drops, health.rejected_chunks, health.resets, health.reconnects,
         )  # fmt: skip
+
+
+# Messages from values, for sources other than FSP frames (the MSP baseline's replies).
+
+
+def imu_message(
+    stamp_ns: int,
+    angular_velocity_rad_s: Sequence[float],
+    linear_acceleration_m_s2: Sequence[float] | None,
+) -> bytes:
+    """An `Imu` without orientation (element 0 of its covariance −1, REP-145); acceleration
+    None: no estimate either."""
+    sec, nsec = divmod(stamp_ns, 1_000_000_000)
+    acc, acc_cov = (
+        ((0.0, 0.0, 0.0), _NO_ESTIMATE9)
+        if linear_acceleration_m_s2 is None
+        else (linear_acceleration_m_s2, _ZEROS9)
+    )
+    return _IMU.pack(
+        CDR_LE, sec, nsec, 3, _FRAME_ID,
+        0.0, 0.0, 0.0, 0.0, *_NO_ESTIMATE9,
+        *angular_velocity_rad_s, *_ZEROS9,
+        *acc, *acc_cov,
+    )  # fmt: skip
+
+
+def attitude_message(stamp_ns: int, roll_deg: float, pitch_deg: float, yaw_deg: float) -> bytes:
+    sec, nsec = divmod(stamp_ns, 1_000_000_000)
+    return _ATTITUDE.pack(CDR_LE, sec, nsec, 3, _FRAME_ID, roll_deg, pitch_deg, yaw_deg)
+
+
+def battery_message(stamp_ns: int, voltage_v: float, current_a: float = _NAN) -> bytes:
+    """A `BatteryState` with what an FC measures: voltage, and current if it has a sensor."""
+    sec, nsec = divmod(stamp_ns, 1_000_000_000)
+    temperature, *others = _BATTERY_UNMEASURED[:5]
+    return _BATTERY.pack(
+        CDR_LE, sec, nsec, 3, _FRAME_ID,
+        voltage_v, temperature, current_a, *others,
+        0, 0, 0, True,  # status, health, technology unknown; present
+        0, 0,  # no cell voltages or temperatures
+        1, _EMPTY, 1, _EMPTY,  # location, serial number
+    )  # fmt: skip
+
+
+def msp_rc_message(stamp_ns: int, channels: Sequence[int]) -> bytes:
+    sec, nsec = divmod(stamp_ns, 1_000_000_000)
+    head = _MSP_RC_HEAD.pack(CDR_LE, sec, nsec, 3, _FRAME_ID, len(channels))
+    return head + struct.pack(f"<{len(channels)}H", *channels)
 
 
 def encode_event(kind: str, t: float, data: bytes = b"", rc: Sequence[int] = ()) -> bytes:

@@ -19,6 +19,8 @@ any MCAP file. Topics:
 (1) A change is written with the frame before it, so a plot steps rather than ramps.
 
 `/fsp/events` holds the raw bytes exactly as read, so `wftool replay` reproduces the run.
+`BagFile` is the container alone (directory, MCAP file, metadata.yaml) for any topics: the
+MSP baseline's recording (`wftool.verify.msp_recording`) is one too.
 Message definitions: `wftool.verify.ros2`. A message's log time is when the OBC read it
 (rosbag2's receive time: `ros2 bag play` paces by it); `header.stamp` is when the FC
 captured it. `ros2 bag play` publishes the standard types anywhere; the `wftool_msgs`
@@ -74,11 +76,22 @@ def bag_file(path: Path) -> Path:
     return files[0]
 
 
-class RosbagWriter:
-    """Writes a run to the rosbag2 directory `path` (which must not exist, or be empty), or,
-    for a `path` ending in `.mcap`, to that one MCAP file (which must not exist)."""
+class BagFile:
+    """A recording's container: the rosbag2 directory `path` (which must not exist, or be
+    empty), or, for a `path` ending in `.mcap`, that one MCAP file (which must not exist),
+    with one CDR channel per topic of `topics` and `custom` as its metadata.
 
-    def __init__(self, path: Path, metadata_name: str, metadata: dict[str, str]) -> None:
+    `channels` maps each topic to the channel id `add` takes. `custom` may grow until
+    `close()`, which writes it again into metadata.yaml with the message counts.
+    """
+
+    def __init__(
+        self,
+        path: Path,
+        topics: dict[str, MessageType],
+        metadata_name: str,
+        custom: dict[str, str],
+    ) -> None:
         if path.exists() and not (path.is_dir() and not any(path.iterdir())):
             raise UsageError(f"cannot write the recording: {path} already exists")
         if path.suffix == ".mcap":
@@ -89,12 +102,8 @@ class RosbagWriter:
         else:
             self.directory, self.mcap_path = path, path / f"{path.name}_0.mcap"
             self.metadata_path = path / "metadata.yaml"
-        self._encoder = FrameEncoder()
-        self._custom = {
-            **metadata,
-            "wftool": __version__,
-            "wall_offset_ns": str(self._encoder.wall_offset_ns),  # Unix minus OBC monotonic time
-        }
+        self.topics = topics
+        self.custom = custom
         created = self.directory is not None and not self.directory.exists()
         try:
             if self.directory is not None:
@@ -104,20 +113,99 @@ class RosbagWriter:
         self._out: McapFile | None = None
         try:
             self._out = McapFile(self.mcap_path, "ros2", f"wftool {__version__}")
-            self._channels = {
+            self.channels = {
                 topic: self._out.register_channel(
                     topic, "cdr", self._out.register_schema(kind.name, "ros2msg", kind.schema_bytes)
                 )
-                for topic, kind in TOPICS.items()
+                for topic, kind in topics.items()
             }
-            self._out.add_metadata(metadata_name, self._custom)
+            self._out.add_metadata(metadata_name, custom)
             self._write_metadata()  # now, so an unwritable directory shows before the run
         except (OSError, UsageError) as exc:
             self._remove(created)
             if isinstance(exc, UsageError):
                 raise
             raise UsageError(f"cannot write the recording: {exc}") from None
-        ids = self._channels
+
+    def add(self, channel: int, log_ns: int, data: bytes) -> None:
+        """One message on `channel` (an id of `channels`), logged at `log_ns`."""
+        self._out.add_message(channel, log_ns, data)
+
+    def __enter__(self) -> BagFile:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+    def add_metadata(self, name: str, data: dict[str, str]) -> None:
+        """A further metadata record in the MCAP file (e.g. a run's results, at its end)."""
+        if self._out is not None:
+            self._out.add_metadata(name, data)
+
+    def close(self) -> None:
+        """Finish the MCAP file and write the final metadata (also after a failure)."""
+        if self._out is None:
+            return
+        out, self._out = self._out, None
+        try:
+            out.finish()
+        finally:
+            self._finish_metadata(out)
+
+    def _finish_metadata(self, out: McapFile) -> None:
+        if self.metadata_path is None:
+            return
+        try:
+            self._write_metadata(out)
+        except OSError as exc:
+            self.metadata_path.with_suffix(".yaml.tmp").unlink(missing_ok=True)
+            if out.failure is None:
+                raise RecordingError(
+                    f"cannot update {self.metadata_path} ({exc.strerror or exc}): it still "
+                    f"lists no messages; {self.mcap_path.name} is complete"
+                ) from None
+            # The recording already failed and said so; the metadata of the start stays.
+
+    def _write_metadata(self, out: McapFile | None = None) -> None:
+        if self.metadata_path is None:  # one MCAP file: its own summary says it all
+            return
+        counts = {topic: 0 for topic in self.topics}
+        start = duration = 0
+        if out is not None:
+            by_id = {channel: topic for topic, channel in self.channels.items()}
+            for channel, count in out.message_counts.items():
+                counts[by_id[channel]] = count
+            if out.time_range is not None:
+                start, duration = out.time_range[0], out.time_range[1] - out.time_range[0]
+        text = _metadata_yaml(
+            self.mcap_path.name, self.topics, counts, start, duration, self.custom
+        )
+        temporary = self.metadata_path.with_suffix(".yaml.tmp")
+        temporary.write_text(text)
+        os.replace(temporary, self.metadata_path)
+
+    def _remove(self, created: bool) -> None:
+        if self._out is not None:
+            self._out.discard()
+        if self.metadata_path is not None:
+            for path in (self.metadata_path, self.metadata_path.with_suffix(".yaml.tmp")):
+                path.unlink(missing_ok=True)
+        if created:
+            self.directory.rmdir()
+
+
+class RosbagWriter(BagFile):
+    """The FSP stream's recording (the topics above), in a `BagFile` at `path`."""
+
+    def __init__(self, path: Path, metadata_name: str, metadata: dict[str, str]) -> None:
+        self._encoder = FrameEncoder()
+        custom = {
+            **metadata,
+            "wftool": __version__,
+            "wall_offset_ns": str(self._encoder.wall_offset_ns),  # Unix minus OBC monotonic time
+        }
+        super().__init__(path, TOPICS, metadata_name, custom)
+        ids = self.channels
         self._imu, self._rpm, self._rc = ids[IMU_TOPIC], ids[RPM_TOPIC], ids[RC_TOPIC]
         self._battery, self._health = ids[BATTERY_TOPIC], ids[HEALTH_TOPIC]
         self._events = ids[EVENT_TOPIC]
@@ -171,62 +259,18 @@ class RosbagWriter:
         add(self._rc, log_ns, encode(frame, stamp))
         self._rc_sent, self._rc_sent_ns = rc, stamp
 
-    def close(self) -> None:
-        """Finish the MCAP file and write the final metadata (also after a failure)."""
-        if self._out is None:
-            return
-        out, self._out = self._out, None
-        try:
-            out.finish()
-        finally:
-            self._finish_metadata(out)
-
-    def _finish_metadata(self, out: McapFile) -> None:
-        if self.metadata_path is None:
-            return
-        try:
-            self._write_metadata(out)
-        except OSError as exc:
-            self.metadata_path.with_suffix(".yaml.tmp").unlink(missing_ok=True)
-            if out.failure is None:
-                raise RecordingError(
-                    f"cannot update {self.metadata_path} ({exc.strerror or exc}): it still "
-                    f"lists no messages; {self.mcap_path.name} is complete"
-                ) from None
-            # The recording already failed and said so; the metadata of the start stays.
-
-    def _write_metadata(self, out: McapFile | None = None) -> None:
-        if self.metadata_path is None:  # one MCAP file: its own summary says it all
-            return
-        counts = {topic: 0 for topic in TOPICS}
-        start = duration = 0
-        if out is not None:
-            by_id = {channel: topic for topic, channel in self._channels.items()}
-            for channel, count in out.message_counts.items():
-                counts[by_id[channel]] = count
-            if out.time_range is not None:
-                start, duration = out.time_range[0], out.time_range[1] - out.time_range[0]
-        text = _metadata_yaml(self.mcap_path.name, counts, start, duration, self._custom)
-        temporary = self.metadata_path.with_suffix(".yaml.tmp")
-        temporary.write_text(text)
-        os.replace(temporary, self.metadata_path)
-
-    def _remove(self, created: bool) -> None:
-        if self._out is not None:
-            self._out.discard()
-        if self.metadata_path is not None:
-            for path in (self.metadata_path, self.metadata_path.with_suffix(".yaml.tmp")):
-                path.unlink(missing_ok=True)
-        if created:
-            self.directory.rmdir()
-
 
 def _quoted(value: str) -> str:
     return json.dumps(value)  # a JSON string is a YAML double-quoted scalar
 
 
 def _metadata_yaml(
-    file_name: str, counts: dict[str, int], start_ns: int, duration_ns: int, custom: dict
+    file_name: str,
+    topics: dict[str, MessageType],
+    counts: dict[str, int],
+    start_ns: int,
+    duration_ns: int,
+    custom: dict,
 ) -> str:
     """rosbag2's metadata.yaml (version 8): the fields every reader back to Humble needs."""
     total = sum(counts.values())
@@ -239,7 +283,7 @@ def _metadata_yaml(
         f"  message_count: {total}",
         "  topics_with_message_count:",
     ]
-    for topic, kind in TOPICS.items():
+    for topic, kind in topics.items():
         lines += [
             "    - topic_metadata:",
             f"        name: {_quoted(topic)}",

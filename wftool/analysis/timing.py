@@ -1,0 +1,524 @@
+"""Table 1 and Figs. 2–3: how regularly samples reach the OBC, FSP against the MSP baseline.
+
+Per recording, the intervals between consecutive samples, on the best clock each has:
+
+- FSP (a `verify --record` recording, or a raw capture of the FSP port's bytes): the FC's
+  capture times of consecutive frames (`time_us`, from the columnar decoder). They are the
+  FC's own timestamps, sent with the samples.
+- MSP (a `wftool record msp` recording): the reception times of consecutive MSP_RAW_IMU
+  replies on the OBC clock, which is all stock MSP gives.
+
+Statistics, in µs: the expected interval (FSP: the rate `fsp_rate_hz` gives at the FC's
+PID looptime, as the recording keeps it; MSP: the rate the IMU was polled at), mean, median,
+P1, P99 and the P99 − P1 spread. Percentiles are NumPy's "lower" method, a value that
+occurred, the rule of `verify`'s interval histograms, so both agree on the same run.
+
+**Segments.** A recording is cut at each reconnection, each FC reset (FSP epochs) and each
+gap: an interval longer than max(`GAP_MIN_S`, `GAP_INTERVALS` × the expected interval, or
+the median without one). An interval across a cut is not one between samples of one
+stream. The table row is the **longest segment**, and says so; the JSON lists every segment
+with its own statistics.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from wftool import __version__
+from wftool.analysis.published import NOT_AVAILABLE, TABLE1, Published
+from wftool.errors import UsageError
+from wftool.fc.msp import Cmd
+from wftool.fsp.columns import decode_columns
+from wftool.verify import msp_recording, recording
+
+GAP_MIN_S = 0.2
+GAP_INTERVALS = 50
+"""An interval longer than this many expected intervals (and than `GAP_MIN_S`) is a gap."""
+PERCENTILE_METHOD = "lower"
+_MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+
+@dataclass(frozen=True)
+class IntervalStats:
+    """Statistics of consecutive sample-time deltas, µs."""
+
+    count: int
+    mean_us: float
+    median_us: float
+    p1_us: float
+    p99_us: float
+
+    @property
+    def spread_us(self) -> float:
+        return self.p99_us - self.p1_us
+
+    @property
+    def rate_hz(self) -> float:
+        return 1e6 / self.mean_us if self.mean_us > 0 else math.inf
+
+    def as_json(self) -> dict[str, float]:
+        return {
+            "intervals": self.count,
+            "mean_us": self.mean_us,
+            "median_us": self.median_us,
+            "p1_us": self.p1_us,
+            "p99_us": self.p99_us,
+            "spread_us": self.spread_us,
+            "rate_hz": self.rate_hz,
+        }
+
+
+def interval_stats(deltas_us: np.ndarray) -> IntervalStats:
+    """Mean, median, P1 and P99 of `deltas_us` (at least one)."""
+    deltas = np.asarray(deltas_us, dtype=np.float64)
+    if deltas.size == 0:
+        raise ValueError("no intervals")
+    p1, median, p99 = np.percentile(deltas, [1, 50, 99], method=PERCENTILE_METHOD)
+    return IntervalStats(
+        int(deltas.size), float(deltas.mean()), float(median), float(p1), float(p99)
+    )
+
+
+@dataclass(frozen=True)
+class Segment:
+    """A stretch of one stream without a reconnection, FC reset or gap."""
+
+    start_s: float
+    """From the recording's first sample."""
+    duration_s: float
+    samples: int
+    stats: IntervalStats | None
+    """None for a single sample."""
+    cut: str
+    """What ends it: "end", "reconnection", "FC reset" or "gap of … s"."""
+
+    def as_json(self) -> dict[str, Any]:
+        return {
+            "start_s": self.start_s,
+            "duration_s": self.duration_s,
+            "samples": self.samples,
+            "ends_with": self.cut,
+            "stats": self.stats.as_json() if self.stats else None,
+        }
+
+
+@dataclass(frozen=True)
+class TimingSeries:
+    """One recording's sample times: the analysed (longest) segment and all segments."""
+
+    label: str
+    source: str
+    protocol: str
+    """"FSP" or "MSP"."""
+    clock: str
+    """What the times are: "FC sample time" or "OBC reception time"."""
+    expected_us: float | None
+    times_s: np.ndarray
+    """The analysed segment's sample times, s from its first sample."""
+    deltas_us: np.ndarray
+    stats: IntervalStats
+    segments: list[Segment]
+    analysed: int
+    """Index of the analysed segment in `segments`."""
+    notes: list[str] = field(default_factory=list)
+
+    def as_json(self) -> dict[str, Any]:
+        return {
+            "label": self.label,
+            "source": self.source,
+            "protocol": self.protocol,
+            "clock": self.clock,
+            "expected_us": self.expected_us,
+            "samples": int(self.times_s.size),
+            "duration_s": float(self.times_s[-1]),
+            "stats": self.stats.as_json(),
+            "analysed_segment": self.analysed,
+            "segments": [segment.as_json() for segment in self.segments],
+            "notes": self.notes,
+        }
+
+
+@dataclass(frozen=True)
+class Samples:
+    """Sample times of one recording before cutting: per sample, its time (µs, float64:
+    exact for FC times), its stream (connection) and its FC epoch."""
+
+    protocol: str
+    clock: str
+    times_us: np.ndarray
+    stream: np.ndarray
+    epoch: np.ndarray
+    expected_us: float | None
+
+
+def load_timing(
+    path: Path, expected_rate_hz: float | None = None, label: str | None = None
+) -> TimingSeries:
+    """`path`'s sample intervals: a recording (FSP or MSP, a bag directory or MCAP file) or
+    a raw FSP capture. Empty, truncated or foreign input is a one-line `UsageError`."""
+    samples = read_samples(path)
+    expected_us = 1e6 / expected_rate_hz if expected_rate_hz else samples.expected_us
+    return analyse(samples, str(path), label or f"{samples.protocol}: {path.name}", expected_us)
+
+
+def read_samples(path: Path) -> Samples:
+    """The sample times in `path`, whatever kind of input it is."""
+    if path.is_dir():
+        return _recording_samples(path)
+    try:
+        with open(path, "rb") as handle:
+            head = handle.read(len(_MCAP_MAGIC))
+    except OSError as exc:
+        raise UsageError(f"cannot read {path}: {exc.strerror or exc}") from None
+    if not head:
+        raise UsageError(f"{path} is empty")
+    if head == _MCAP_MAGIC:
+        return _recording_samples(path)
+    return _capture_samples(path)
+
+
+def _recording_samples(path: Path) -> Samples:
+    topics = recording.recording_topics(path)
+    if recording.EVENT_TOPIC in topics:
+        metadata = recording.recording_metadata(path)
+        connections = [c for c in recording.recording_columns(path) if len(c)]
+        if not connections:
+            raise UsageError(f"{path} holds no FSP frames")
+        return _fsp_samples(
+            [c.time_us for c in connections],
+            [np.repeat(c.epoch, 2) for c in connections],
+            _rate_us(metadata.get("expected_rate_hz")),
+        )
+    if msp_recording.EVENT_TOPIC in topics:
+        metadata, connections = msp_recording.msp_replies(path)
+        times = [
+            np.array([r.t for r in replies if r.cmd == Cmd.RAW_IMU and not r.error])
+            for replies in connections
+        ]
+        times = [t for t in times if t.size]
+        if not times:
+            raise UsageError(f"{path} holds no MSP_RAW_IMU replies")
+        return Samples(
+            "MSP",
+            "OBC reception time",
+            np.concatenate(times) * 1e6,
+            np.concatenate([np.full(t.size, i) for i, t in enumerate(times)]),
+            np.zeros(sum(t.size for t in times), np.int64),
+            _rate_us(metadata.get("expected_rate_hz")),
+        )
+    raise UsageError(
+        f"{path} is an MCAP file but no wftool recording (it has no "
+        f"{recording.EVENT_TOPIC} or {msp_recording.EVENT_TOPIC})"
+    )
+
+
+def _capture_samples(path: Path) -> Samples:
+    """A raw capture: the bytes of an FSP port, decoded as one read (FC times only)."""
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise UsageError(f"cannot read {path}: {exc.strerror or exc}") from None
+    columns = decode_columns(data)
+    if not len(columns):
+        raise UsageError(
+            f"{path} is neither a wftool recording nor an FSP capture "
+            f"(no FSP frame in its {len(data)} bytes)"
+        )
+    return _fsp_samples([columns.time_us], [np.repeat(columns.epoch, 2)], None)
+
+
+def _fsp_samples(
+    times_us: list[np.ndarray], epochs: list[np.ndarray], expected_us: float | None
+) -> Samples:
+    return Samples(
+        "FSP",
+        "FC sample time",
+        np.concatenate(times_us).astype(np.float64),
+        np.concatenate([np.full(t.size, i) for i, t in enumerate(times_us)]),
+        np.concatenate(epochs),
+        expected_us,
+    )
+
+
+def _rate_us(text: str | None) -> float | None:
+    try:
+        rate = float(text or "nan")
+    except ValueError:
+        return None
+    return 1e6 / rate if rate > 0 else None
+
+
+def analyse(samples: Samples, source: str, label: str, expected_us: float | None) -> TimingSeries:
+    """Cut `samples` into segments and take the statistics of the longest."""
+    times = samples.times_us
+    if times.size < 2:
+        raise UsageError(f"{source}: fewer than two samples")
+    deltas = np.diff(times)
+    new_stream = np.diff(samples.stream) != 0
+    reset = ~new_stream & (np.diff(samples.epoch) != 0)
+    within = ~new_stream & ~reset
+    median_us = float(np.median(deltas[within])) if within.any() else 0.0
+    nominal_us = expected_us or median_us
+    gap = within & (deltas > max(GAP_MIN_S * 1e6, GAP_INTERVALS * nominal_us))
+    cuts = np.flatnonzero(new_stream | reset | gap)
+    starts = np.concatenate([[0], cuts + 1])
+    ends = np.concatenate([cuts + 1, [times.size]])
+    segments = []
+    for start, end, cut in zip(starts, ends, [*cuts, None]):
+        part = times[start:end]
+        if cut is None:
+            reason = "end"
+        elif new_stream[cut]:
+            reason = "reconnection"
+        elif reset[cut]:
+            reason = "FC reset"
+        else:
+            reason = f"gap of {deltas[cut] * 1e-6:.3g} s"
+        segments.append(
+            Segment(
+                float(part[0] - times[0]) * 1e-6,
+                float(part[-1] - part[0]) * 1e-6,
+                int(part.size),
+                interval_stats(np.diff(part)) if part.size > 1 else None,
+                reason,
+            )
+        )
+    longest = max(range(len(segments)), key=lambda i: (segments[i].duration_s, -i))
+    part = times[starts[longest] : ends[longest]]
+    if part.size < 2:
+        raise UsageError(f"{source}: no two consecutive samples without a cut between them")
+    notes = []
+    if len(segments) > 1:
+        causes = [s.cut for s in segments[:-1]]
+        counts = {c: causes.count(c) for c in ("reconnection", "FC reset")}
+        counts["gap"] = sum(c.startswith("gap") for c in causes)
+        what = ", ".join(f"{n} {name}{'s' if n > 1 else ''}" for name, n in counts.items() if n)
+        total = sum(s.duration_s for s in segments)
+        notes.append(
+            f"split at {what} into {len(segments)} segments; analysed the longest, "
+            f"segment {longest + 1} ({segments[longest].duration_s:.1f} s of {total:.1f} s)"
+        )
+    deltas_us = np.diff(part)
+    return TimingSeries(
+        label,
+        source,
+        samples.protocol,
+        samples.clock,
+        expected_us,
+        (part - part[0]) * 1e-6,
+        deltas_us,
+        interval_stats(deltas_us),
+        segments,
+        longest,
+        notes,
+    )
+
+
+# -- Table 1 ----------------------------------------------------------------------------------
+
+COLUMNS = (
+    "recording", "time base", "samples", "expected (µs)", "mean (µs)", "median (µs)",
+    "P1 (µs)", "P99 (µs)", "P99−P1 (µs)", "rate (Hz)",
+)  # fmt: skip
+
+
+def _us(value: float | None) -> str:
+    return "—" if value is None else f"{value:.1f}"
+
+
+def table_rows(series: list[TimingSeries], paper: bool = False) -> list[dict[str, str]]:
+    """Table 1 as rows of strings (`COLUMNS`); with `paper`, each recording's row is
+    followed by the paper's published row for its protocol (`wftool.analysis.published`)."""
+    rows = []
+    for one in series:
+        stats = one.stats
+        values = (
+            one.label, one.clock, str(one.times_s.size), _us(one.expected_us),
+            _us(stats.mean_us), _us(stats.median_us), _us(stats.p1_us), _us(stats.p99_us),
+            _us(stats.spread_us), f"{stats.rate_hz:.1f}",
+        )  # fmt: skip
+        rows.append(dict(zip(COLUMNS, values)))
+        published = TABLE1.get(one.protocol) if paper else None
+        if published is None:
+            continue
+        shown = [_published(figure) for figure in published.figures().values()]
+        rate = _published(published.mean_us, lambda mean_us: 1e6 / mean_us)
+        values = (f"{published.protocol}: the paper", published.setup, "—", *shown, rate)
+        rows.append(dict(zip(COLUMNS, values)))
+    return rows
+
+
+def _published(figure: Published | None, convert: Callable[[float], float] = float) -> str:
+    if figure is None:
+        return NOT_AVAILABLE
+    return ("≈" if figure.approximate else "") + f"{convert(figure.value):.1f}"
+
+
+def table_notes(series: list[TimingSeries], paper: bool = False) -> list[str]:
+    """What the table's reader needs to know: cuts, and where published values come from."""
+    notes = [f"{one.label}: {note}" for one in series for note in one.notes]
+    if paper:
+        for protocol in dict.fromkeys(one.protocol for one in series):
+            row = TABLE1.get(protocol)
+            if row is None:
+                continue
+            for name, figure in row.figures().items():
+                if figure is not None:
+                    notes.append(f"paper's {protocol} {name.removesuffix('_us')}: {figure.source}")
+        notes.append(
+            "the paper's own Table 1 is not in this repository and could not be found from "
+            "here: figures not known are 'not available', never estimated"
+        )
+    return notes
+
+
+def render_markdown(series: list[TimingSeries], paper: bool = False) -> str:
+    rows = table_rows(series, paper)
+    lines = [
+        "# Table 1: sample-interval statistics",
+        "",
+        "Intervals between consecutive samples: FSP by the FC's sample times, MSP by the "
+        "OBC's reception times of MSP_RAW_IMU replies. Percentiles: a value that occurred "
+        f"(NumPy method '{PERCENTILE_METHOD}').",
+        "",
+        "| " + " | ".join(COLUMNS) + " |",
+        "|" + "|".join("---" if c in ("recording", "time base") else "---:" for c in COLUMNS) + "|",
+    ]
+    lines += ["| " + " | ".join(row.values()) + " |" for row in rows]
+    notes = table_notes(series, paper)
+    if notes:
+        lines += ["", *(f"- {note}" for note in notes)]
+    return "\n".join(lines) + "\n"
+
+
+def write_table(
+    series: list[TimingSeries], out_dir: Path, stem: str = "timing", paper: bool = False
+) -> tuple[Path, Path]:
+    """`stem`.md and `stem`.json in `out_dir` (created); returns their paths."""
+    markdown, data = out_dir / f"{stem}.md", out_dir / f"{stem}.json"
+    document: dict[str, Any] = {
+        "wftool": __version__,
+        "percentile_method": PERCENTILE_METHOD,
+        "gap_rule": {"min_s": GAP_MIN_S, "expected_intervals": GAP_INTERVALS},
+        "recordings": [one.as_json() for one in series],
+    }
+    if paper:
+        document["paper"] = {
+            protocol: {
+                "setup": row.setup,
+                **{
+                    name: None
+                    if figure is None
+                    else {
+                        "value": figure.value,
+                        "approximate": figure.approximate,
+                        "source": figure.source,
+                    }
+                    for name, figure in row.figures().items()
+                },
+            }
+            for protocol, row in TABLE1.items()
+        }
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        markdown.write_text(render_markdown(series, paper))
+        data.write_text(json.dumps(document, indent=1) + "\n")
+    except OSError as exc:
+        raise UsageError(f"cannot write to {out_dir}: {exc.strerror or exc}") from None
+    return markdown, data
+
+
+# -- Figs. 2 and 3 ----------------------------------------------------------------------------
+
+HISTOGRAM_BINS = 200
+_COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown")
+
+
+def _axis_top_us(series: list[TimingSeries]) -> float:
+    """A shared axis end that shows every distribution's body and P99 (not every outlier)."""
+    top = 0.0
+    for one in series:
+        p999 = float(np.percentile(one.deltas_us, 99.9, method=PERCENTILE_METHOD))
+        top = max(top, 1.2 * p999, 1.5 * one.stats.p99_us, 2.0 * (one.expected_us or 0.0))
+    return top or 1.0
+
+
+def _save(figure: Any, out: Path) -> None:
+    try:
+        figure.savefig(out, dpi=120)
+    except OSError as exc:
+        raise UsageError(f"cannot write {out}: {exc.strerror or exc}") from None
+
+
+def draw_histograms(series: list[TimingSeries], out: Path) -> None:
+    """Fig. 2: one histogram of the intervals per recording, shared axis, log counts, with
+    the mean, P1 and P99 (and the expected interval) marked."""
+    from matplotlib.figure import Figure
+
+    top = _axis_top_us(series)
+    figure = Figure(figsize=(10, 1.2 + 2.6 * len(series)), layout="constrained")
+    axes = figure.subplots(len(series), 1, sharex=True, squeeze=False)[:, 0]
+    edges = np.linspace(0.0, top, HISTOGRAM_BINS + 1)
+    for index, (ax, one) in enumerate(zip(axes, series)):
+        stats = one.stats
+        beyond = int(np.count_nonzero(one.deltas_us > top))
+        ax.hist(np.clip(one.deltas_us, 0.0, top), bins=edges, color=_COLOURS[index % 6], alpha=0.8)
+        ax.set_yscale("log")
+        marks = [
+            (stats.mean_us, "-", "black", f"mean {stats.mean_us:.1f} µs"),
+            (stats.p1_us, "--", "dimgray", f"P1 {stats.p1_us:.1f} µs"),
+            (stats.p99_us, "--", "crimson", f"P99 {stats.p99_us:.1f} µs"),
+        ]
+        if one.expected_us:
+            marks.append((one.expected_us, ":", "green", f"expected {one.expected_us:.1f} µs"))
+        for value, style, colour, text in marks:
+            ax.axvline(value, linestyle=style, color=colour, linewidth=1.2, label=text)
+        title = f"{one.label} — {one.clock}, {stats.count} intervals"
+        if beyond:
+            title += f" ({beyond} beyond {top:.0f} µs in the last bin)"
+        ax.set_title(title, fontsize=10)
+        ax.set_ylabel("count")
+        ax.legend(loc="upper right", fontsize=8, framealpha=0.7)
+    axes[-1].set_xlabel("interval between consecutive samples (µs)")
+    axes[-1].set_xlim(0.0, top)
+    figure.suptitle("Fig. 2: distribution of sample intervals", fontsize=11)
+    _save(figure, out)
+
+
+def draw_intervals(series: list[TimingSeries], out: Path) -> None:
+    """Fig. 3: each interval against time, one panel per recording, shared axes."""
+    from matplotlib.figure import Figure
+
+    top = _axis_top_us(series)
+    figure = Figure(figsize=(10, 1.2 + 2.4 * len(series)), layout="constrained")
+    axes = figure.subplots(len(series), 1, sharey=True, squeeze=False)[:, 0]
+    for index, (ax, one) in enumerate(zip(axes, series)):
+        t = one.times_s[1:]
+        deltas = one.deltas_us
+        over = deltas > top
+        ax.plot(t[~over], deltas[~over], ".", markersize=1.5, color=_COLOURS[index % 6], zorder=3)
+        if over.any():
+            ax.plot(
+                t[over], np.full(int(over.sum()), top), "^", markersize=3, color="crimson",
+                label=f"{int(over.sum())} above {top:.0f} µs",
+            )  # fmt: skip
+        if one.expected_us:
+            ax.axhline(
+                one.expected_us, linestyle=":", color="green", linewidth=1.2, zorder=2,
+                label=f"expected {one.expected_us:.1f} µs",
+            )  # fmt: skip
+        ax.set_title(f"{one.label} — {one.clock}", fontsize=10)
+        ax.set_ylabel("interval (µs)")
+        ax.set_xlim(0.0, float(one.times_s[-1]) or 1.0)
+        ax.legend(loc="upper right", fontsize=8, framealpha=0.7)
+    axes[0].set_ylim(0.0, top * 1.03)
+    axes[-1].set_xlabel("time in the analysed segment (s)")
+    figure.suptitle("Fig. 3: sample intervals over time", fontsize=11)
+    _save(figure, out)

@@ -1,0 +1,362 @@
+"""Polling MSP on a fixed schedule: the stock-Betaflight baseline the paper compares FSP with.
+
+    poller = MspPoller(open_port("socket://127.0.0.1:5761", timeout=0), PAPER_SCHEDULE)
+    result = poller.run(duration_s=30, observer=recorder)
+    print(result.commands[Cmd.RAW_IMU].replies, result.commands[Cmd.RAW_IMU].sent)
+
+Stock MSP gives the OBC nothing but replies, so each reply is stamped with the OBC's
+`time.monotonic()` when the read that completed it returned: a sample's time is its
+reception time. That is the baseline's whole timing story.
+
+**How the FC answers.** Betaflight serves MSP in its SERIAL task, which runs at
+`serial_update_rate_hz` (100 Hz stock, up to 2000). Each run takes at most ONE command per
+MSP port and answers it (`mspProcessPacket` in `msp_serial.c`: "process one command at a
+time so as not to block"); further requests wait in the port's receive buffer for later
+runs. So a port answers at most `serial_update_rate_hz` commands per second, whatever the
+OBC asks; the paper's schedule (RAW_IMU 1000 Hz, RC and ATTITUDE 100 Hz, ANALOG 10 Hz:
+1210 requests/s) asks for more than a 1 kHz SERIAL task can answer.
+
+**How this poller asks.** Each command has its own slots, `start + k / rate`. At each slot
+the request is written at once, without waiting for replies to earlier ones (a fixed
+schedule, as the paper's poller: rates set by the OBC, replies stamped whenever they come),
+unless `window` requests are still unanswered: then it waits for room, the longest-waiting
+slot first, until its command's next slot comes; then it is *skipped* and counted. The
+window bounds the backlog in the FC: a receive buffer is small (256 bytes on an STM32 UART,
+1400 on SITL's TCP UART) and both overwrite when full, so an unbounded pipeline would
+corrupt requests instead of queueing them. `window=1` is strict request-reply. A slot that
+passes while the poller is late (the OBC was busy) is *missed* and counted, never sent late:
+no catch-up bursts. `PollResult` says, per command, how many slots there were and how many
+requests were sent, skipped, missed and answered (sent + skipped + missed = slots).
+
+Replies come back in request order (one port, one command per task run), so each reply is
+matched to the oldest unanswered request for its command; requests it overtakes were lost.
+A request unanswered after `reply_timeout_s` is given up and frees its place in the window.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from array import array
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import serial
+
+from wftool.errors import UsageError
+from wftool.fc.msp import Cmd, FrameReader, MspFrame, MspVersion, encode_request
+from wftool.fc.transport import port_errors, read_within, selectable_fd
+
+DEFAULT_WINDOW = 4
+"""Requests in flight at most: 36 bytes of MSP v2 requests (24 of v1), far below any FC
+receive buffer, and four task runs of backlog."""
+REPLY_TIMEOUT_S = 0.5
+
+
+@dataclass(frozen=True)
+class PollRate:
+    """One command of a schedule and how often to ask for it."""
+
+    cmd: int
+    rate_hz: float
+
+    @property
+    def name(self) -> str:
+        try:
+            return Cmd(self.cmd).name
+        except ValueError:
+            return str(self.cmd)
+
+
+PAPER_SCHEDULE: tuple[PollRate, ...] = (
+    PollRate(Cmd.RAW_IMU, 1000.0),
+    PollRate(Cmd.RC, 100.0),
+    PollRate(Cmd.ATTITUDE, 100.0),
+    PollRate(Cmd.ANALOG, 10.0),
+)
+"""The paper's MSP baseline: the IMU at 1 kHz, RC and attitude at 100 Hz, battery at 10 Hz."""
+
+
+def parse_schedule(texts: Sequence[str]) -> tuple[PollRate, ...]:
+    """`NAME=HZ` items (e.g. `RAW_IMU=1000`, names of `Cmd`) as a schedule."""
+    rates = []
+    for text in texts:
+        name, equals, value = text.partition("=")
+        try:
+            cmd = Cmd[name.strip().upper().removeprefix("MSP_")]
+            rate = float(value) if equals else float("nan")
+        except (KeyError, ValueError):
+            known = ", ".join(rate.name for rate in PAPER_SCHEDULE)
+            raise UsageError(
+                f"expected NAME=HZ with an MSP command name (e.g. {known}), got {text!r}"
+            ) from None
+        if not 0 < rate <= 10_000:
+            raise UsageError(f"{text!r}: the rate must be above 0 and at most 10000 Hz")
+        rates.append(PollRate(cmd, rate))
+    return tuple(rates)
+
+
+def check_poll(schedule: Sequence[PollRate], window: int) -> None:
+    """A schedule and window a poller can run, or `UsageError`."""
+    if not schedule:
+        raise UsageError("the MSP schedule is empty")
+    if len({rate.cmd for rate in schedule}) != len(schedule):
+        raise UsageError("each command may appear once in the schedule")
+    if window < 1:
+        raise UsageError(f"the request window must be at least 1, not {window}")
+
+
+@dataclass(frozen=True)
+class MspReply:
+    """One reply, stamped on reception."""
+
+    cmd: int
+    payload: bytes
+    t: float
+    """OBC monotonic time (s) at which the read that completed the reply returned."""
+    error: bool = False
+    """`$M!`/`$X!`: the FC did not know the command."""
+    requested_at: float | None = None
+    """When the request it answers was written; None if none was waiting for it."""
+
+
+class PollObserver(Protocol):
+    """What sees a run as it happens (the recording): the bytes both ways, and the replies."""
+
+    def connected(self, t: float) -> None: ...
+
+    def request(self, t: float, wire: bytes) -> None: ...
+
+    def read(self, t: float, data: bytes) -> None: ...
+
+    def reply(self, reply: MspReply) -> None: ...
+
+    def disconnected(self, t: float) -> None: ...
+
+
+@dataclass
+class CommandStats:
+    """How one command of the schedule fared."""
+
+    name: str
+    rate_hz: float
+    slots: int = 0
+    """Slots that came during the run (duration × rate); each was sent, skipped or missed."""
+    sent: int = 0
+    skipped: int = 0
+    """Slots not sent: the window had no room before the command's next slot came."""
+    missed: int = 0
+    """Slots that passed while the poller was late (not sent)."""
+    replies: int = 0
+    error_replies: int = 0
+    lost: int = 0
+    """Requests never answered: overtaken by a later reply, or given up after the timeout."""
+    latencies_s: array = field(default_factory=lambda: array("d"), repr=False)
+    """Per matched reply: reception minus request time."""
+
+    def as_json(self, duration_s: float) -> dict:
+        latency = sorted(self.latencies_s)
+
+        def pick(q: float) -> float | None:
+            return latency[int(q * (len(latency) - 1))] * 1e3 if latency else None
+
+        return {
+            "command": self.name,
+            "rate_hz": self.rate_hz,
+            "slots": self.slots,
+            "sent": self.sent,
+            "skipped": self.skipped,
+            "missed": self.missed,
+            "replies": self.replies,
+            "error_replies": self.error_replies,
+            "lost": self.lost,
+            "sent_rate_hz": self.sent / duration_s if duration_s > 0 else 0.0,
+            "reply_rate_hz": self.replies / duration_s if duration_s > 0 else 0.0,
+            "latency_median_ms": pick(0.5),
+            "latency_p99_ms": pick(0.99),
+        }
+
+
+@dataclass
+class PollResult:
+    """What a run asked and got, per command (in schedule order)."""
+
+    duration_s: float
+    window: int
+    version: int
+    commands: dict[int, CommandStats]
+    corrupt_frames: int = 0
+    """Frames with a bad checksum (dropped)."""
+    stray_replies: int = 0
+    """Replies no request was waiting for (e.g. late answers from before the run)."""
+    interrupted: bool = False
+    """Ctrl-C ended the run."""
+
+    def as_json(self) -> dict:
+        return {
+            "duration_s": self.duration_s,
+            "window": self.window,
+            "msp_version": self.version,
+            "corrupt_frames": self.corrupt_frames,
+            "stray_replies": self.stray_replies,
+            "interrupted": self.interrupted,
+            "commands": [stats.as_json(self.duration_s) for stats in self.commands.values()],
+        }
+
+
+class MspPoller:
+    """Polls `schedule` on an open link (see the module docstring)."""
+
+    def __init__(
+        self,
+        link: serial.SerialBase,
+        schedule: Sequence[PollRate] = PAPER_SCHEDULE,
+        *,
+        window: int = DEFAULT_WINDOW,
+        version: MspVersion = MspVersion.V1,
+        reply_timeout_s: float = REPLY_TIMEOUT_S,
+        now: Callable[[], float] = time.monotonic,
+    ) -> None:
+        check_poll(schedule, window)
+        self.link = link
+        self.schedule = tuple(schedule)
+        self.window = window
+        self.version = version
+        self.reply_timeout_s = reply_timeout_s
+        self._now = now
+        self._wires = {rate.cmd: encode_request(rate.cmd, b"", version) for rate in self.schedule}
+        self._fd = selectable_fd(link)
+        self._in_flight: deque[tuple[int, float]] = deque()
+        self._waiting: dict[int, float] = {}
+        self._frames = FrameReader()
+
+    def run(
+        self,
+        duration_s: float | None,
+        observer: PollObserver | None = None,
+        stop: threading.Event | None = None,
+    ) -> PollResult:
+        """Poll for `duration_s` (None: until `stop` is set or Ctrl-C), then wait up to the
+        reply timeout for the answers still due. Ctrl-C ends the run like `stop`
+        (`PollResult.interrupted`); port failures raise `PortError`."""
+        if duration_s is not None and not duration_s > 0:
+            raise UsageError(f"the duration must be positive, not {duration_s:g} s")
+        stats = {rate.cmd: CommandStats(rate.name, rate.rate_hz) for rate in self.schedule}
+        result = PollResult(0.0, self.window, int(self.version), stats)
+        self._in_flight.clear()
+        self._waiting.clear()
+        self._frames = FrameReader()
+        with port_errors(self.link.port or "link"):
+            self.link.reset_input_buffer()
+            start = self._now()
+            end = start + duration_s if duration_s is not None else math.inf
+            if observer is not None:
+                observer.connected(start)
+            try:
+                self._poll(start, end, result, observer, stop)
+                self._drain(result, observer)
+            except KeyboardInterrupt:
+                result.interrupted = True
+            finally:
+                finished = self._now()
+                result.duration_s = min(finished, end) - start
+                for cmd, _ in self._in_flight:
+                    stats[cmd].lost += 1
+                for cmd in self._waiting:  # the run ended before the window had room
+                    stats[cmd].skipped += 1
+                self._in_flight.clear()
+                self._waiting.clear()
+                if observer is not None:
+                    observer.disconnected(finished)
+        return result
+
+    def _poll(
+        self,
+        start: float,
+        end: float,
+        result: PollResult,
+        observer: PollObserver | None,
+        stop: threading.Event | None,
+    ) -> None:
+        now, stats, in_flight = self._now, result.commands, self._in_flight
+        periods = [1.0 / rate.rate_hz for rate in self.schedule]
+        commands = [rate.cmd for rate in self.schedule]
+        next_slot = [start] * len(commands)
+        waiting = self._waiting  # command -> the time of its slot waiting for room
+        t = start
+        while t < end and not (stop is not None and stop.is_set()):
+            for i, cmd in enumerate(commands):
+                if next_slot[i] > t:
+                    continue
+                command = stats[cmd]
+                slots = int((t - start) / periods[i]) + 1  # slots 0 .. slots - 1 have come
+                command.missed += slots - command.slots - 1  # came and went while we were away
+                command.slots = slots
+                if cmd in waiting:
+                    command.skipped += 1  # its successor came before the window had room
+                waiting[cmd] = start + (slots - 1) * periods[i]
+                next_slot[i] = start + slots * periods[i]
+            self._expire(stats, t)
+            # The waiting slots in the order they came, while the window has room.
+            for cmd in sorted(waiting, key=waiting.__getitem__):
+                if len(in_flight) >= self.window:
+                    break
+                del waiting[cmd]
+                wire = self._wires[cmd]
+                self.link.write(wire)
+                sent_at = now()
+                in_flight.append((cmd, sent_at))
+                stats[cmd].sent += 1
+                if observer is not None:
+                    observer.request(sent_at, wire)
+            self._receive(min(min(next_slot), end) - now(), result, observer)
+            t = now()
+
+    def _drain(self, result: PollResult, observer: PollObserver | None) -> None:
+        """The replies still due for requests already sent, up to the reply timeout."""
+        deadline = self._now() + self.reply_timeout_s
+        while self._in_flight and (left := deadline - self._now()) > 0:
+            self._receive(left, result, observer)
+
+    def _receive(self, timeout: float, result: PollResult, observer: PollObserver | None) -> None:
+        data = read_within(self.link, self._fd, timeout)
+        if not data:
+            return
+        t = self._now()
+        if observer is not None:
+            observer.read(t, data)
+        frames = self._frames.feed(data)
+        result.corrupt_frames = self._frames.corrupt
+        self._replies(frames, t, result, observer)
+
+    def _expire(self, stats: dict[int, CommandStats], t: float) -> None:
+        in_flight = self._in_flight
+        while in_flight and t - in_flight[0][1] > self.reply_timeout_s:
+            stats[in_flight.popleft()[0]].lost += 1
+
+    def _replies(
+        self, frames: list[MspFrame], t: float, result: PollResult, observer: PollObserver | None
+    ) -> None:
+        """The frames a read completed, stamped `t`, each matched to its request."""
+        in_flight, stats = self._in_flight, result.commands
+        for frame in frames:
+            requested_at = None
+            if any(cmd == frame.cmd for cmd, _ in in_flight):
+                while True:
+                    cmd, sent_at = in_flight.popleft()
+                    if cmd == frame.cmd:
+                        requested_at = sent_at
+                        break
+                    stats[cmd].lost += 1  # overtaken: the FC never answered it
+            command = stats.get(frame.cmd)
+            if command is None or requested_at is None:
+                result.stray_replies += 1
+            else:
+                command.replies += 1
+                command.error_replies += frame.error
+                command.latencies_s.append(t - requested_at)
+            if observer is not None:
+                observer.reply(MspReply(frame.cmd, frame.payload, t, frame.error, requested_at))
