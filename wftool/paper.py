@@ -4,8 +4,8 @@ On the virtual FC (default) or a board, into one output directory:
 
 1. The FC: the virtual FC starts with FSP on UART2, `fsp_rate_hz`, synthetic motion and
    `serial_update_rate_hz` = 1000 (the paper's MSP baseline ran a 1 kHz serial task), all
-   through the safe CLI workflow; a board gets `serial_update_rate_hz` the same way (its
-   backup in `backups/`) unless told to keep it.
+   through the safe CLI workflow (its working directory: `sitl/`); a board gets
+   `serial_update_rate_hz` the same way (its backup in `backups/`) unless told to keep it.
 2. `fsp/`: the FSP port recorded for the duration, as `verify --record` records it, the
    expected rate from `fsp_rate_hz` and the FC's PID looptime (over MSP).
 3. `msp/`: the MSP port polled on the paper's schedule for the duration, as `wftool record
@@ -23,7 +23,8 @@ On the virtual FC (default) or a board, into one output directory:
 
 from __future__ import annotations
 
-import tempfile
+import contextlib
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -47,7 +48,7 @@ SERIAL_RATE_HZ = 1000
 ACCFILTER_RATE_HZ = 800
 """The BMI270's accelerometer rate, for the harness's Fig. 4."""
 ACCFILTER_DURATION_S = 20.0
-OUTPUTS = ("fsp", "msp", "table1.md", "table1.json")
+OUTPUTS = ("fsp", "msp", "sitl", "table1.md", "table1.json")
 """What marks a directory that already holds a run."""
 
 
@@ -101,23 +102,21 @@ def run_timing(
     except OSError as exc:
         raise UsageError(f"cannot create {out_dir}: {exc.strerror or exc}") from None
     if board is not None:
-        run = _on_board(board, out_dir, duration_s, fsp_rate_hz, serial_rate_hz, window, log)
+        fc = _board(board, out_dir, fsp_rate_hz, serial_rate_hz, log)
     else:
-        run = _on_virtual_fc(binary, out_dir, duration_s, fsp_rate_hz, serial_rate_hz, window, log)
+        fc = _virtual_fc(binary, out_dir / "sitl", fsp_rate_hz, serial_rate_hz, log)
+    with fc as (ports, expected_rate_hz):
+        run = _record(ports, out_dir, duration_s, expected_rate_hz, serial_rate_hz, window, log)
     _figures(run, project_dir, with_accfilter, log)
     return run
 
 
-def _on_virtual_fc(
-    binary: Path,
-    out_dir: Path,
-    duration_s: float,
-    fsp_rate_hz: int,
-    serial_rate_hz: int | None,
-    window: int,
-    log: Log,
-) -> TimingRun:
-    workdir = Path(tempfile.mkdtemp(prefix="wftool-paper-sitl-"))
+@contextlib.contextmanager
+def _virtual_fc(
+    binary: Path, workdir: Path, fsp_rate_hz: int, serial_rate_hz: int | None, log: Log
+) -> Iterator[tuple[Board, float]]:
+    """The virtual FC set up for the run (its eeprom.bin, log and backups in `workdir`):
+    its ports and the frame rate to expect."""
     session = VirtualFcSession(
         binary,
         workdir,
@@ -128,22 +127,14 @@ def _on_virtual_fc(
     )
     log(f"starting the virtual FC in {workdir} (serial_update_rate_hz {serial_rate_hz})")
     with session:
-        expected = session.expected_rate_hz
-        return _record(
-            session.msp_url, session.fsp_url, DEFAULT_BAUDRATE, out_dir, duration_s,
-            expected, serial_rate_hz, window, log,
-        )  # fmt: skip
+        yield Board(session.msp_url, session.fsp_url), session.expected_rate_hz
 
 
-def _on_board(
-    board: Board,
-    out_dir: Path,
-    duration_s: float,
-    fsp_rate_hz: int,
-    serial_rate_hz: int | None,
-    window: int,
-    log: Log,
-) -> TimingRun:
+@contextlib.contextmanager
+def _board(
+    board: Board, out_dir: Path, fsp_rate_hz: int, serial_rate_hz: int | None, log: Log
+) -> Iterator[tuple[Board, float]]:
+    """A board with `serial_rate_hz` set (unless None), and the frame rate to expect."""
     if serial_rate_hz is not None:
         plan = plan_from_assignments([f"serial_update_rate_hz={serial_rate_hz}"])
         report = apply_plan(SerialBoard(board.msp_url), plan, out_dir / "backups", log)
@@ -151,17 +142,11 @@ def _on_board(
             log(f"{row.name}: {row.before} -> {row.after} (backup {report.backup})")
         if report.mismatches:
             raise UsageError(f"the board did not take the setting: {'; '.join(report.mismatches)}")
-    expected = fc_frame_rate_hz(board.msp_url, fsp_rate_hz)
-    return _record(
-        board.msp_url, board.fsp_url, board.fsp_baud, out_dir, duration_s, expected,
-        serial_rate_hz, window, log,
-    )  # fmt: skip
+    yield board, fc_frame_rate_hz(board.msp_url, fsp_rate_hz)
 
 
 def _record(
-    msp_url: str,
-    fsp_url: str,
-    fsp_baud: int,
+    fc: Board,
     out_dir: Path,
     duration_s: float,
     expected_rate_hz: float,
@@ -170,23 +155,24 @@ def _record(
     log: Log,
 ) -> TimingRun:
     """The FSP recording, then the MSP recording, on one FC."""
-    log(f"recording FSP on {fsp_url} for {duration_s:g} s (expected {expected_rate_hz:.1f} Hz)")
+    log(f"recording FSP on {fc.fsp_url} for {duration_s:g} s (expected {expected_rate_hz:.1f} Hz)")
     fsp = VerifySession(
-        fsp_url,
-        fsp_baud,
+        fc.fsp_url,
+        fc.fsp_baud,
         duration_s,
         expected_rate_hz=expected_rate_hz,
         record_path=out_dir / "fsp",
     ).run()
     acc_1g = fsp.latest.acc_1g if fsp.latest is not None else None
-    log(f"recording MSP on {msp_url} for {duration_s:g} s (the paper's schedule)")
+    log(f"recording MSP for {duration_s:g} s (the paper's schedule)")
     msp = record_msp(
-        msp_url,
+        fc.msp_url,
         out_dir / "msp",
         duration_s,
         window=window,
         acc_1g=acc_1g or None,
         serial_update_rate_hz=serial_rate_hz,
+        log=log,
     )
     return TimingRun(out_dir, fsp, msp, serial_rate_hz, [out_dir / "fsp", out_dir / "msp"])
 

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pytest
 
+from tests.conftest import fc_settings
 from wftool.errors import ParameterError
 from wftool.fc.cli_session import CliSession
 from wftool.fc.fsp_setup import FSP_FUNCTION, SerialPortConfig, fsp_planner, function_names
@@ -80,3 +81,12 @@ def test_serial_line_round_trip_and_function_names() -> None:
     assert config.command() == line
     assert function_names(66) == "GPS+RX_SERIAL"
     assert function_names(FSP_FUNCTION | 1 << 30) == "FSP+bit 30"
+
+
+def test_serial_update_rate_can_be_chosen(virtual_fc: VirtualFC, tmp_path: Path) -> None:
+    """The paper's MSP baseline ran a 1 kHz serial task: the setup takes the rate asked."""
+    report = apply_plan(
+        virtual_fc, fsp_planner(uart=2, baud=2_000_000, serial_update_rate_hz=1000), tmp_path
+    )
+    assert report.mismatches == []
+    assert fc_settings(virtual_fc, "serial_update_rate_hz") == {"serial_update_rate_hz": "1000"}

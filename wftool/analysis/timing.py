@@ -23,7 +23,6 @@ with its own statistics.
 from __future__ import annotations
 
 import json
-import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -37,6 +36,7 @@ from wftool.errors import UsageError
 from wftool.fc.msp import Cmd
 from wftool.fsp.columns import decode_columns
 from wftool.verify import msp_recording, recording
+from wftool.verify.monitor import IntervalSummary
 
 GAP_MIN_S = 0.2
 GAP_INTERVALS = 50
@@ -45,45 +45,27 @@ PERCENTILE_METHOD = "lower"
 _MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
-@dataclass(frozen=True)
-class IntervalStats:
-    """Statistics of consecutive sample-time deltas, µs."""
-
-    count: int
-    mean_us: float
-    median_us: float
-    p1_us: float
-    p99_us: float
-
-    @property
-    def spread_us(self) -> float:
-        return self.p99_us - self.p1_us
-
-    @property
-    def rate_hz(self) -> float:
-        return 1e6 / self.mean_us if self.mean_us > 0 else math.inf
-
-    def as_json(self) -> dict[str, float]:
-        return {
-            "intervals": self.count,
-            "mean_us": self.mean_us,
-            "median_us": self.median_us,
-            "p1_us": self.p1_us,
-            "p99_us": self.p99_us,
-            "spread_us": self.spread_us,
-            "rate_hz": self.rate_hz,
-        }
-
-
-def interval_stats(deltas_us: np.ndarray) -> IntervalStats:
-    """Mean, median, P1 and P99 of `deltas_us` (at least one)."""
+def interval_stats(deltas_us: np.ndarray) -> IntervalSummary:
+    """Mean, median, P1 and P99 of `deltas_us` (at least one), as `verify` summarises the
+    FC intervals of a stream."""
     deltas = np.asarray(deltas_us, dtype=np.float64)
     if deltas.size == 0:
         raise ValueError("no intervals")
     p1, median, p99 = np.percentile(deltas, [1, 50, 99], method=PERCENTILE_METHOD)
-    return IntervalStats(
-        int(deltas.size), float(deltas.mean()), float(median), float(p1), float(p99)
-    )
+    mean = float(deltas.mean())
+    return IntervalSummary(int(deltas.size), mean, float(p1), float(median), float(p99))
+
+
+def stats_json(stats: IntervalSummary) -> dict[str, float]:
+    return {
+        "intervals": stats.count,
+        "mean_us": stats.mean_us,
+        "median_us": stats.p50_us,
+        "p1_us": stats.p1_us,
+        "p99_us": stats.p99_us,
+        "spread_us": stats.spread_us,
+        "rate_hz": stats.rate_hz,
+    }
 
 
 @dataclass(frozen=True)
@@ -94,7 +76,7 @@ class Segment:
     """From the recording's first sample."""
     duration_s: float
     samples: int
-    stats: IntervalStats | None
+    stats: IntervalSummary | None
     """None for a single sample."""
     cut: str
     """What ends it: "end", "reconnection", "FC reset" or "gap of … s"."""
@@ -105,7 +87,7 @@ class Segment:
             "duration_s": self.duration_s,
             "samples": self.samples,
             "ends_with": self.cut,
-            "stats": self.stats.as_json() if self.stats else None,
+            "stats": stats_json(self.stats) if self.stats else None,
         }
 
 
@@ -123,7 +105,7 @@ class TimingSeries:
     times_s: np.ndarray
     """The analysed segment's sample times, s from its first sample."""
     deltas_us: np.ndarray
-    stats: IntervalStats
+    stats: IntervalSummary
     segments: list[Segment]
     analysed: int
     """Index of the analysed segment in `segments`."""
@@ -138,7 +120,7 @@ class TimingSeries:
             "expected_us": self.expected_us,
             "samples": int(self.times_s.size),
             "duration_s": float(self.times_s[-1]),
-            "stats": self.stats.as_json(),
+            "stats": stats_json(self.stats),
             "analysed_segment": self.analysed,
             "segments": [segment.as_json() for segment in self.segments],
             "notes": self.notes,
@@ -341,8 +323,8 @@ def table_rows(series: list[TimingSeries], paper: bool = False) -> list[dict[str
         stats = one.stats
         values = (
             one.label, one.clock, str(one.times_s.size), _us(one.expected_us),
-            _us(stats.mean_us), _us(stats.median_us), _us(stats.p1_us), _us(stats.p99_us),
-            _us(stats.spread_us), f"{stats.rate_hz:.1f}",
+            _us(stats.mean_us), _us(stats.p50_us), _us(stats.p1_us), _us(stats.p99_us),
+            _us(stats.spread_us), _us(stats.rate_hz),
         )  # fmt: skip
         rows.append(dict(zip(COLUMNS, values)))
         published = TABLE1.get(one.protocol) if paper else None

@@ -82,13 +82,6 @@ def record_msp_command(
 
     schedule = parse_schedule(schedule_items) if schedule_items else PAPER_SCHEDULE
     path = out_path or Path(time.strftime("msp-%Y%m%d-%H%M%S"))
-    total = sum(rate.rate_hz for rate in schedule)
-    err.print(
-        f"polling {url}: "
-        + ", ".join(f"{rate.name} {rate.rate_hz:g} Hz" for rate in schedule)
-        + f" ({total:g} requests/s), at most {window} in flight; replies stamped on reception",
-        markup=False,
-    )
     result = record_msp(
         url,
         path,
@@ -98,12 +91,17 @@ def record_msp_command(
         version=MspVersion(int(msp_version)),
         baudrate=baud,
         acc_1g=acc_1g,
+        log=lambda message: err.print(message, markup=False, soft_wrap=True),
     )
     if as_json:
         click.echo(json.dumps(result.as_json(), indent=1))
     else:
         print_poll(result, out)
-    err.print(f"wrote {path}" + (" (interrupted)" if result.interrupted else ""), markup=False)
+    err.print(
+        f"wrote {path}" + (" (interrupted)" if result.interrupted else ""),
+        markup=False,
+        soft_wrap=True,
+    )
 
 
 def print_poll(result: PollResult, console: Console) -> None:

@@ -99,6 +99,15 @@ def parse_schedule(texts: Sequence[str]) -> tuple[PollRate, ...]:
     return tuple(rates)
 
 
+def describe(schedule: Sequence[PollRate], window: int) -> str:
+    """The schedule in words, for the user to see what is asked."""
+    rates = ", ".join(f"{rate.name} {rate.rate_hz:g} Hz" for rate in schedule)
+    total = sum(rate.rate_hz for rate in schedule)
+    return (
+        f"{rates} ({total:g} requests/s), at most {window} in flight; replies stamped on reception"
+    )
+
+
 def check_poll(schedule: Sequence[PollRate], window: int) -> None:
     """A schedule and window a poller can run, or `UsageError`."""
     if not schedule:

@@ -43,6 +43,11 @@ class IntervalSummary:
         """P99 − P1: the jitter figure the verdict judges."""
         return self.p99_us - self.p1_us
 
+    @property
+    def rate_hz(self) -> float | None:
+        """The rate these intervals make (1 / mean); None for a zero mean."""
+        return 1e6 / self.mean_us if self.mean_us > 0 else None
+
 
 class IntervalHistogram:
     """Intervals in whole microseconds."""
@@ -294,7 +299,7 @@ class StreamMonitor:
             frame_rate_hz=frames / duration_s if duration_s > 0 else 0.0,
             packet_rate_hz=totals.packets / duration_s if duration_s > 0 else 0.0,
             current_frame_rate_hz=sum(window) / window_s if window_s > 0 else 0.0,
-            source_rate_hz=1e6 / fc.mean_us if fc is not None and fc.mean_us > 0 else None,
+            source_rate_hz=fc.rate_hz if fc is not None else None,
             expected_rate_hz=self.expected_rate_hz,
             fc_interval=fc,
             arrival_interval=self.arrival_intervals.summary(),

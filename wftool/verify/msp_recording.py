@@ -54,8 +54,10 @@ from wftool.fc.msp_poller import (
     PollRate,
     PollResult,
     check_poll,
+    describe,
 )
 from wftool.fc.transport import open_port
+from wftool.progress import Log, quiet
 from wftool.verify import ros2
 from wftool.verify.recording import RecordingReader
 from wftool.verify.rosbag import BagFile
@@ -211,15 +213,22 @@ def record_msp(
     acc_1g: int | None = None,
     serial_update_rate_hz: int | None = None,
     stop: threading.Event | None = None,
+    log: Log = quiet,
 ) -> PollResult:
     """Poll the FC's MSP port `url` and record it to `path` (see the module docstring and
-    `wftool.fc.msp_poller`); the recording is finished however the run ends."""
+    `wftool.fc.msp_poller`); the recording is finished however the run ends. A port that
+    cannot be opened leaves no recording behind."""
     check_poll(schedule, window)
     metadata = poll_metadata(url, schedule, window, int(version), serial_update_rate_hz)
     recorder = MspRecorder(path, metadata, acc_1g)  # an unwritable path fails before the run
     try:
         link = open_port(url, baudrate, timeout=0)
+    except BaseException:
+        recorder.discard()
+        raise
+    try:
         try:
+            log(f"polling {url}: {describe(schedule, window)}")
             poller = MspPoller(link, schedule, window=window, version=version)
             result = poller.run(duration_s, recorder, stop)
         finally:

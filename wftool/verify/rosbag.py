@@ -110,6 +110,7 @@ class BagFile:
                 self.directory.mkdir(exist_ok=True)
         except OSError as exc:
             raise UsageError(f"cannot write the recording: {exc}") from None
+        self._created = created
         self._out: McapFile | None = None
         try:
             self._out = McapFile(self.mcap_path, "ros2", f"wftool {__version__}")
@@ -141,6 +142,11 @@ class BagFile:
         """A further metadata record in the MCAP file (e.g. a run's results, at its end)."""
         if self._out is not None:
             self._out.add_metadata(name, data)
+
+    def discard(self) -> None:
+        """Close and delete what was created: the run never started."""
+        self._remove(self._created)
+        self._out = None
 
     def close(self) -> None:
         """Finish the MCAP file and write the final metadata (also after a failure)."""

@@ -1,0 +1,142 @@
+"""The MSP poller against the patched SITL (a real Betaflight answering MSP).
+
+What is checked is what the poller promises, not how fast a loaded machine is: every
+request goes out in a slot of its command's schedule (never early, never twice), at most
+WINDOW are unanswered at any time, every reply is stamped on reception after its request,
+every slot is accounted for, and the FC answers no more than its serial task can.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pytest
+
+from tests.conftest import run_cli
+from wftool.errors import UsageError
+from wftool.fc.msp import Cmd, FrameReader, MspVersion, parse_raw_imu
+from wftool.fc.msp_poller import PAPER_SCHEDULE, MspPoller, MspReply, PollRate, parse_schedule
+from wftool.fc.transport import open_port
+from wftool.sitl.process import VirtualFC
+
+SERIAL_TASK_HZ = 100
+"""A fresh SITL's serial_update_rate_hz (Betaflight's default)."""
+
+
+class Seen:
+    """A poll observer that keeps everything, in order."""
+
+    def __init__(self) -> None:
+        self.events: list[tuple[str, float, object]] = []
+        self.replies: list[MspReply] = []
+        self.start = self.end = math.nan
+
+    def connected(self, t: float) -> None:
+        self.start = t
+
+    def disconnected(self, t: float) -> None:
+        self.end = t
+
+    def request(self, t: float, wire: bytes) -> None:
+        self.events.append(("request", t, FrameReader().feed(wire.replace(b"<", b">", 1))[0].cmd))
+
+    def read(self, t: float, data: bytes) -> None:
+        self.events.append(("read", t, data))
+
+    def reply(self, reply: MspReply) -> None:
+        self.events.append(("reply", reply.t, reply.cmd))
+        self.replies.append(reply)
+
+
+def poll(fc: VirtualFC, duration_s: float, window: int, **options) -> tuple[object, Seen]:
+    seen = Seen()
+    link = open_port(fc.url, timeout=0)
+    try:
+        result = MspPoller(link, PAPER_SCHEDULE, window=window, **options).run(duration_s, seen)
+    finally:
+        link.close()
+    return result, seen
+
+
+@pytest.mark.parametrize("window", [4, 1])
+def test_schedule_window_and_stamps_on_sitl(virtual_fc: VirtualFC, window: int) -> None:
+    result, seen = poll(virtual_fc, 3.0, window)
+    assert not result.interrupted and result.corrupt_frames == 0 and result.stray_replies == 0
+    for rate in PAPER_SCHEDULE:
+        stats = result.commands[rate.cmd]
+        period = 1.0 / rate.rate_hz
+        # Every request in a slot of its own: k = its slot, distinct and increasing.
+        slots = [
+            math.floor((t - seen.start) / period)
+            for kind, t, cmd in seen.events
+            if kind == "request" and cmd == rate.cmd
+        ]
+        assert len(slots) == stats.sent > 0
+        assert slots == sorted(set(slots)) and slots[-1] < stats.slots
+        assert stats.sent + stats.skipped + stats.missed == stats.slots
+        assert stats.slots <= result.duration_s * rate.rate_hz + 1
+        assert stats.replies == stats.sent - stats.lost and stats.lost == 0
+        assert stats.error_replies == 0
+    # Never more than WINDOW unanswered.
+    in_flight = worst = 0
+    for kind, _, _ in seen.events:
+        in_flight += {"request": 1, "reply": -1}.get(kind, 0)
+        worst = max(worst, in_flight)
+    assert worst == window and in_flight == 0
+    # Stamped on reception: each reply at the time of the read that completed it, after its
+    # request, in order.
+    reads = [t for kind, t, _ in seen.events if kind == "read"]
+    assert all(reply.t in reads for reply in seen.replies)
+    assert all(r.requested_at is not None and r.t >= r.requested_at for r in seen.replies)
+    assert [r.t for r in seen.replies] == sorted(r.t for r in seen.replies)
+    assert seen.start <= seen.replies[0].t and seen.replies[-1].t <= seen.end
+    imu = next(r for r in seen.replies if r.cmd == Cmd.RAW_IMU)
+    assert len(parse_raw_imu(imu.payload).gyro) == 3
+    # One command per serial task run: the FC (whose clock never runs ahead of the host's)
+    # answers at most 100 a second, however many are asked for.
+    answered = sum(stats.replies for stats in result.commands.values())
+    assert answered <= SERIAL_TASK_HZ * (seen.end - seen.start) + window
+    assert sum(stats.sent for stats in result.commands.values()) < sum(
+        stats.slots for stats in result.commands.values()
+    )
+
+
+def test_msp_v2_requests_are_answered(virtual_fc: VirtualFC) -> None:
+    result, _ = poll(virtual_fc, 1.0, 2, version=MspVersion.V2)
+    assert result.commands[Cmd.RAW_IMU].replies > 0 and result.corrupt_frames == 0
+
+
+def test_schedules_are_parsed_and_bad_ones_refused() -> None:
+    assert parse_schedule(["raw_imu=500", "MSP_RC=50"]) == (
+        PollRate(Cmd.RAW_IMU, 500.0),
+        PollRate(Cmd.RC, 50.0),
+    )
+    for bad in (["RAW_IMU"], ["NOPE=10"], ["RC=0"], ["RC=fast"], ["RC=10", "rc=20"]):
+        with pytest.raises(UsageError):
+            MspPoller(None, parse_schedule(bad))
+
+
+def test_record_msp_cli_and_bad_input(
+    virtual_fc: VirtualFC, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "msp"
+    code, stdout, stderr = run_cli(
+        capsys, "record", "msp", "--port", virtual_fc.url, "--duration", "2", "--out", str(out),
+    )  # fmt: skip
+    assert code == 0, stderr
+    assert "RAW_IMU" in stdout and "commands/s" in stdout and "stamped on reception" in stderr
+    code, stdout, stderr = run_cli(capsys, "analyze", "timing", str(out), "--out", str(tmp_path))
+    assert code == 0, stderr
+    assert "OBC reception time" in stdout
+
+    for args, message in (
+        (["--out", str(out)], "already exists"),
+        (["--schedule", "WHAT=1"], "expected NAME=HZ"),
+        (["--port", "socket://127.0.0.1:1", "--out", str(tmp_path / "x")], "cannot open"),
+    ):
+        argv = ["record", "msp", "--port", virtual_fc.url, "--duration", "1", *args]
+        code, stdout, stderr = run_cli(capsys, *argv)
+        assert code == 2, stdout + stderr
+        assert len(stderr.strip().splitlines()) == 1 and message in stderr, stderr
+    assert not (tmp_path / "x").exists()  # nothing left behind by a run that could not start
