@@ -174,6 +174,8 @@ def _record(
         serial_update_rate_hz=serial_rate_hz,
         log=log,
     )
+    if msp.interrupted:  # Ctrl-C: the recording is finished; the comparison is abandoned
+        raise KeyboardInterrupt
     return TimingRun(out_dir, fsp, msp, serial_rate_hz, [out_dir / "fsp", out_dir / "msp"])
 
 

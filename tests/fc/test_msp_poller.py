@@ -8,7 +8,12 @@ every slot is accounted for, and the FC answers no more than its serial task can
 
 from __future__ import annotations
 
+import json
 import math
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -19,6 +24,7 @@ from wftool.fc.msp import Cmd, FrameReader, MspVersion, parse_raw_imu
 from wftool.fc.msp_poller import PAPER_SCHEDULE, MspPoller, MspReply, PollRate, parse_schedule
 from wftool.fc.transport import open_port
 from wftool.sitl.process import VirtualFC
+from wftool.verify.msp_recording import msp_replies
 
 SERIAL_TASK_HZ = 100
 """A fresh SITL's serial_update_rate_hz (Betaflight's default)."""
@@ -140,3 +146,33 @@ def test_record_msp_cli_and_bad_input(
         assert code == 2, stdout + stderr
         assert len(stderr.strip().splitlines()) == 1 and message in stderr, stderr
     assert not (tmp_path / "x").exists()  # nothing left behind by a run that could not start
+
+
+def test_ctrl_c_ends_an_open_ended_recording_and_keeps_it(
+    virtual_fc: VirtualFC, tmp_path: Path
+) -> None:
+    bag = tmp_path / "msp"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "wftool", "record", "msp", "--port", virtual_fc.url,
+         "--out", str(bag), "--json"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # as from a terminal
+    )  # fmt: skip
+    try:
+        assert process.stderr is not None and process.stdout is not None
+        assert process.stderr.readline().startswith("polling ")
+        time.sleep(1.5)
+        process.send_signal(signal.SIGINT)
+        assert process.wait(30) == 0, process.stderr.read()
+        counts = json.loads(process.stdout.read())
+        assert "(interrupted)" in process.stderr.read()
+    finally:
+        process.kill()
+        process.wait()
+    assert counts["interrupted"]
+    metadata, [replies] = msp_replies(bag)
+    assert json.loads(metadata["result"]) == counts
+    imu = counts["commands"][0]
+    assert imu["command"] == "RAW_IMU"
+    assert imu["sent"] + imu["skipped"] + imu["missed"] == imu["slots"]
+    assert sum(1 for reply in replies if reply.cmd == Cmd.RAW_IMU) == imu["replies"] > 0
