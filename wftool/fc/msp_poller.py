@@ -18,15 +18,16 @@ OBC asks; the paper's schedule (RAW_IMU 1000 Hz, RC and ATTITUDE 100 Hz, ANALOG 
 
 **How this poller asks.** Each command has its own slots, `start + k / rate`. At each slot
 the request is written at once, without waiting for replies to earlier ones (a fixed
-schedule, as the paper's poller: rates set by the OBC, replies stamped whenever they come),
-unless `window` requests are still unanswered: then it waits for room, the longest-waiting
-slot first, until its command's next slot comes; then it is *skipped* and counted. The
-window bounds the backlog in the FC: a receive buffer is small (256 bytes on an STM32 UART,
-1400 on SITL's TCP UART) and both overwrite when full, so an unbounded pipeline would
-corrupt requests instead of queueing them. `window=1` is strict request-reply. A slot that
-passes while the poller is late (the OBC was busy) is *missed* and counted, never sent late:
-no catch-up bursts. `PollResult` says, per command, how many slots there were and how many
-requests were sent, skipped, missed and answered (sent + skipped + missed = slots).
+schedule: the rates are the OBC's, as in the paper's baseline, and replies are stamped
+whenever they come), unless `window` requests are still unanswered: then it waits for room,
+the longest-waiting slot first, until its command's next slot comes; then it is *skipped*
+and counted. The window bounds the backlog in the FC: a receive buffer is small (256 bytes
+on an STM32 UART, 1400 on SITL's TCP UART) and both overwrite when full, so an unbounded
+pipeline would corrupt requests instead of queueing them. `window=1` is strict
+request-reply. A slot that passes while the poller is late (the OBC was busy) is *missed*
+and counted, never sent late: no catch-up bursts. `PollResult` says, per command, how many
+slots there were and how many requests were sent, skipped, missed and answered (sent +
+skipped + missed = slots).
 
 Replies come back in request order (one port, one command per task run), so each reply is
 matched to the oldest unanswered request for its command; requests it overtakes were lost.
@@ -54,6 +55,7 @@ DEFAULT_WINDOW = 4
 """Requests in flight at most: 36 bytes of MSP v2 requests (24 of v1), far below any FC
 receive buffer, and four task runs of backlog."""
 REPLY_TIMEOUT_S = 0.5
+"""A request unanswered this long is lost (an FC answers within a few task runs)."""
 
 
 @dataclass(frozen=True)
