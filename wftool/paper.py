@@ -38,7 +38,6 @@ from wftool.fc.params import apply_plan, plan_from_assignments
 from wftool.fsp import DEFAULT_BAUDRATE
 from wftool.fsp.schedule import DEFAULT_RATE_HZ
 from wftool.progress import Log, quiet
-from wftool.sitl.process import free_port_base
 from wftool.sitl.session import Motion, VirtualFcSession
 from wftool.verify.msp_recording import record_msp
 from wftool.verify.session import VerifyResult, VerifySession, fc_frame_rate_hz
@@ -122,7 +121,7 @@ def _virtual_fc(
         workdir,
         rate_hz=fsp_rate_hz,
         motion=Motion(),
-        port_base=free_port_base(),
+        port_base=None,  # any free ports: taken at the start, another if one was grabbed
         serial_update_rate_hz=serial_rate_hz,
     )
     log(f"starting the virtual FC in {workdir} (serial_update_rate_hz {serial_rate_hz})")
