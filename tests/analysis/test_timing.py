@@ -34,8 +34,11 @@ pytest.importorskip("matplotlib", reason="needs the analysis extra (Matplotlib)"
 from wftool.analysis.timing import load_timing  # noqa: E402
 
 EXPECTED_HZ = 1000.0
-STEPS_US = (960, 980, 1000, 1000, 1000, 1020, 1040, 3000)
-"""Frame-to-frame steps: jitter around 1 ms, and now and then two frames missing."""
+STEPS_US = (960, 980, 1000, 1000, 1000, 1020, 1040, 2000)
+"""Frame-to-frame steps: jitter around 1 ms, and now and then a frame the FC skipped
+(within what the decoder takes as the stream going on)."""
+Packet = tuple[int, int, int]
+"""(E1 seq, first frame's time, second frame's time), µs."""
 
 
 def lower(values: list[float], q: float) -> float:
@@ -60,61 +63,74 @@ def frame(t_us: int) -> SensorFrame:
     )  # fmt: skip
 
 
-def segment_times(rng: random.Random, start_us: int, frames: int) -> list[int]:
-    times = [start_us]
-    while len(times) < frames:
-        times.append(times[-1] + rng.choice(STEPS_US))
-    return times
+def packets(rng: random.Random, start_us: int, count: int, seq: int) -> list[Packet]:
+    out, t = [], start_us
+    for index in range(count):
+        second = t + rng.choice(STEPS_US)
+        out.append((seq + index, t, second))
+        t = second + rng.choice(STEPS_US)
+    return out
 
 
-# FSP: connection 1 is A, a 0.5 s gap, B, an FC reset, C; connection 2 is D. B is longest.
-SEGMENTS = {"A": 200, "B": 800, "C": 300, "D": 100}
-
-
-def fsp_run() -> list[list[tuple[str, list[int]]]]:
+def fsp_run() -> list[list[list[Packet]]]:
+    """Per connection, its stretches of packets. Connection 1: A; the FC stalls 0.5 s (a
+    gap); B, three of whose packets are lost in transport (one interval to leave out); the
+    FC reboots (time and seq start over); C. The port is gone for 1000 packets (about 2 s,
+    a gap); connection 2: D. B is the longest."""
     rng = random.Random(11)
-    a = segment_times(rng, 4_000_000, SEGMENTS["A"])
-    b = segment_times(rng, a[-1] + 500_000, SEGMENTS["B"])  # the gap
-    c = segment_times(rng, 2_000_000, SEGMENTS["C"])  # the FC restarted
-    d = segment_times(rng, c[-1] + 2_000_000, SEGMENTS["D"])
-    return [[("A", a), ("B", b), ("C", c)], [("D", d)]]
+    a = packets(rng, 4_000_000, 100, 0)
+    b = packets(rng, a[-1][2] + 500_000, 400, a[-1][0] + 1)
+    del b[150:153]
+    c = packets(rng, 2_000_000, 150, 0)
+    d = packets(rng, c[-1][2] + 1000, 1050, c[-1][0] + 1)[1000:]
+    return [[a, b, c], [d]]
 
 
 def write_fsp(path: Path, record_format: str) -> bytes:
     """The run through the real recorder; returns connection 1's bytes (a raw capture)."""
     metadata = run_metadata("socket://sim:5762", 2_000_000, EXPECTED_HZ, None)
     capture = b""
-    seq = 0
-    t_obc = 100.0
+    t_obc, previous = 100.0, None
     with Recorder(path, None, metadata, record_format) as recorder:
         live = RecordingMonitor(recorder)
         for number, connection in enumerate(fsp_run()):
             live.connected(t_obc)
-            previous = None
-            for _, times in connection:
-                for first, second in zip(times[::2], times[1::2]):
-                    # The OBC clock moves with the FC's, across the gap too; after a reset
-                    # (the FC's clock went back) it moves on by 10 ms.
+            for stretch in connection:
+                for seq, first, second in stretch:
+                    # The OBC clock moves with the FC's, across the gaps too; after the FC
+                    # rebooted (its clock went back) it moves on by 10 ms.
                     moved = previous is not None and second > previous
                     t_obc += (second - previous) * 1e-6 if moved else 0.01
                     previous = second
                     packet = StatePacket(second + 80, (frame(first), frame(second)), seq, True, 0)
                     wire = encode_state(packet)
-                    seq += 1
                     live.feed(wire, t_obc)
                     if number == 0:
                         capture += wire
-            t_obc += 1.0
-            live.disconnected(t_obc)
+            live.disconnected(t_obc + 0.001)
     return capture
 
 
-def deltas_of(times: list[int]) -> list[float]:
-    return [float(b - a) for a, b in itertools.pairwise(times)]
+def frame_times(stretch: list[Packet]) -> list[int]:
+    return [t for _, first, second in stretch for t in (first, second)]
+
+
+def deltas_of(stretch: list[Packet]) -> list[float]:
+    """The intervals that count: all within a packet; between packets, only the next seq's."""
+    deltas = []
+    for index, (seq, first, second) in enumerate(stretch):
+        if index and seq == stretch[index - 1][0] + 1:
+            deltas.append(float(first - stretch[index - 1][2]))
+        deltas.append(float(second - first))
+    return deltas
+
+
+def gap(before: list[Packet], after: list[Packet]) -> str:
+    return f"gap of {(after[0][1] - before[-1][2]) * 1e-6:.3g} s"
 
 
 @pytest.mark.parametrize("record_format", ["ros2", "json"])
-def test_fsp_recording_known_intervals_split_at_gap_reset_and_reconnection(
+def test_fsp_recording_known_intervals_split_at_gaps_and_reset(
     tmp_path: Path, record_format: str
 ) -> None:
     path = tmp_path / ("run" if record_format == "ros2" else "run.mcap")
@@ -122,19 +138,20 @@ def test_fsp_recording_known_intervals_split_at_gap_reset_and_reconnection(
     series = load_timing(path)
     assert (series.protocol, series.clock) == ("FSP", "FC sample time")
     assert series.expected_us == pytest.approx(1e6 / EXPECTED_HZ)
-    [[(_, a), (_, b), (_, c)], [(_, d)]] = fsp_run()
-    assert [s.samples for s in series.segments] == [len(a), len(b), len(c), len(d)]
-    assert [s.cut for s in series.segments] == [
-        "gap of 0.5 s", "FC reset", "reconnection", "end"
-    ]  # fmt: skip
-    assert series.analysed == 1 and series.times_s.size == len(b)
+    [[a, b, c], [d]] = fsp_run()
+    assert [s.samples for s in series.segments] == [2 * len(x) for x in (a, b, c, d)]
+    assert [s.cut for s in series.segments] == ["gap of 0.5 s", "FC reset", gap(c, d), "end"]
+    assert series.analysed == 1 and series.times_s.size == 2 * len(b)
     check_stats(series.stats, deltas_of(b))
-    for segment, times in zip(series.segments, (a, b, c, d)):
-        check_stats(segment.stats, deltas_of(times))
+    assert len(deltas_of(b)) == 2 * len(b) - 2  # the interval across the loss is left out
+    for segment, stretch in zip(series.segments, (a, b, c, d)):
+        check_stats(segment.stats, deltas_of(stretch))
     assert series.notes == [
-        "split at 1 reconnection, 1 FC reset, 1 gap into 4 segments; analysed the longest, "
-        f"segment 2 ({series.segments[1].duration_s:.1f} s of "
-        f"{sum(s.duration_s for s in series.segments):.1f} s)"
+        "split at 1 FC reset, 2 gaps into 4 segments; analysed the longest, segment 2 "
+        f"({series.segments[1].duration_s:.1f} s of "
+        f"{sum(s.duration_s for s in series.segments):.1f} s)",
+        "1 interval(s) spanning frames lost in transport or dropped on the FC left out of the "
+        "analysed segment's statistics",
     ]
 
 
@@ -142,22 +159,24 @@ def test_raw_capture_known_intervals(tmp_path: Path) -> None:
     capture = tmp_path / "fsp.bin"
     capture.write_bytes(write_fsp(tmp_path / "run", "ros2"))
     series = load_timing(capture, expected_rate_hz=EXPECTED_HZ)
-    [[(_, a), (_, b), (_, c)], _] = fsp_run()
+    [[a, b, c], _] = fsp_run()
     assert [s.cut for s in series.segments] == ["gap of 0.5 s", "FC reset", "end"]
-    assert [s.samples for s in series.segments] == [len(a), len(b), len(c)]
+    assert [s.samples for s in series.segments] == [2 * len(x) for x in (a, b, c)]
     assert series.expected_us == pytest.approx(1000.0)
     check_stats(series.stats, deltas_of(b))
 
 
-def test_agrees_with_verify_on_an_unbroken_run(tmp_path: Path) -> None:
-    """`verify`'s own interval histograms (another implementation) give the same P1/P99."""
+def test_agrees_with_verify_on_a_run_without_cuts(tmp_path: Path) -> None:
+    """`verify`'s own interval histograms (another implementation) give the same figures,
+    the interval across a transport loss left out by both."""
     path = tmp_path / "steady"
     metadata = run_metadata("socket://sim:5762", 2_000_000, EXPECTED_HZ, None)
-    times = segment_times(random.Random(3), 1_000_000, 1000)
+    stretch = packets(random.Random(3), 1_000_000, 500, 0)
+    del stretch[200:205]
     with Recorder(path, None, metadata) as recorder:
         live = RecordingMonitor(recorder)
         live.connected(50.0)
-        for seq, (first, second) in enumerate(zip(times[::2], times[1::2])):
+        for seq, first, second in stretch:
             packet = StatePacket(second + 80, (frame(first), frame(second)), seq, True, 0)
             live.feed(encode_state(packet), 50 + second * 1e-6)
         live.disconnected(60.0)
@@ -166,6 +185,7 @@ def test_agrees_with_verify_on_an_unbroken_run(tmp_path: Path) -> None:
     assert (ours.count, ours.p1_us, ours.p50_us, ours.p99_us) == (
         verify.count, verify.p1_us, verify.p50_us, verify.p99_us
     )  # fmt: skip
+    assert ours.count == len(deltas_of(stretch)) == 2 * len(stretch) - 2
     assert ours.mean_us == pytest.approx(verify.mean_us)
 
 
@@ -213,7 +233,7 @@ def test_cli_writes_the_table_and_figures(tmp_path: Path, capsys) -> None:
     )
     assert code == 0, stderr
     assert "FSP: the paper" in stdout and "not available" in stdout
-    assert "split at 1 reconnection, 1 FC reset, 1 gap" in stdout
+    assert "split at 1 FC reset, 2 gaps" in stdout
     data = json.loads((out / "timing.json").read_text())
     stats = load_timing(tmp_path / "fsp").stats
     assert data["recordings"][0]["stats"]["p99_us"] == stats.p99_us
@@ -244,9 +264,9 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path: Path, capsys) -> None:
 
     whole = tmp_path / "whole.mcap"
     write_fsp(whole, "ros2")
-    truncated = tmp_path / "truncated.mcap"
-    truncated.write_bytes(whole.read_bytes()[: whole.stat().st_size // 2])
-    one_line_error(capsys, str(truncated))
+    header_only = tmp_path / "header.mcap"
+    header_only.write_bytes(whole.read_bytes()[:20])
+    one_line_error(capsys, str(header_only))
 
     other = tmp_path / "other.mcap"
     with open(other, "wb") as handle:
@@ -261,6 +281,20 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path: Path, capsys) -> None:
     empty_bag = tmp_path / "bag"
     empty_bag.mkdir()
     assert "expected one .mcap file" in one_line_error(capsys, str(empty_bag))
+
+
+def test_a_recording_cut_short_is_analysed_as_far_as_it_goes(tmp_path: Path, capsys) -> None:
+    """A writer killed mid-run leaves a file without its ending: what it holds is analysed,
+    and the table says the recording was cut."""
+    whole = tmp_path / "whole.mcap"
+    write_fsp(whole, "json")  # JSON MCAP: about 3,000 bytes a packet, many chunks
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(whole.read_bytes()[: whole.stat().st_size // 3])
+    code, stdout, stderr = run_cli(capsys, "analyze", "timing", str(cut), "--out", str(tmp_path))
+    assert code == 0, stderr
+    assert "not finished (its writer was stopped hard)" in stdout
+    held, written = (sum(s.samples for s in load_timing(f).segments) for f in (cut, whole))
+    assert 0 < held < written
 
 
 def test_a_recording_without_samples_is_refused(tmp_path: Path) -> None:

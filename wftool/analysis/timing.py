@@ -34,7 +34,8 @@ from wftool import __version__
 from wftool.analysis.published import NOT_AVAILABLE, TABLE1, Published
 from wftool.errors import UsageError
 from wftool.fc.msp import Cmd
-from wftool.fsp.columns import decode_columns
+from wftool.fsp.columns import StateColumns, decode_columns
+from wftool.fsp.packets import SEQ_MODULUS
 from wftool.verify import msp_recording, recording
 from wftool.verify.monitor import IntervalSummary
 
@@ -105,6 +106,9 @@ class TimingSeries:
     times_s: np.ndarray
     """The analysed segment's sample times, s from its first sample."""
     deltas_us: np.ndarray
+    """Its intervals that count (see `Samples.counts`), µs..."""
+    delta_times_s: np.ndarray
+    """... and when each ended, s from the segment's first sample."""
     stats: IntervalSummary
     segments: list[Segment]
     analysed: int
@@ -130,21 +134,26 @@ class TimingSeries:
 @dataclass(frozen=True)
 class Samples:
     """Sample times of one recording before cutting: per sample, its time (µs, float64:
-    exact for FC times), its stream (connection) and its FC epoch."""
+    exact for FC times), its stream (connection) and its FC epoch; per interval between
+    consecutive samples, whether it `counts`: False where it spans frames that never
+    arrived (lost in transport or dropped on the FC, which `verify` leaves out too)."""
 
     protocol: str
     clock: str
     times_us: np.ndarray
     stream: np.ndarray
     epoch: np.ndarray
+    counts: np.ndarray
     expected_us: float | None
+    notes: list[str] = field(default_factory=list)
 
 
 def load_timing(
     path: Path, expected_rate_hz: float | None = None, label: str | None = None
 ) -> TimingSeries:
     """`path`'s sample intervals: a recording (FSP or MSP, a bag directory or MCAP file) or
-    a raw FSP capture. Empty, truncated or foreign input is a one-line `UsageError`."""
+    a raw FSP capture. Empty, damaged or foreign input is a one-line `UsageError`; a
+    recording whose writer was killed is analysed as far as it goes, and says so."""
     samples = read_samples(path)
     expected_us = 1e6 / expected_rate_hz if expected_rate_hz else samples.expected_us
     return analyse(samples, str(path), label or f"{samples.protocol}: {path.name}", expected_us)
@@ -169,36 +178,41 @@ def read_samples(path: Path) -> Samples:
 def _recording_samples(path: Path) -> Samples:
     topics = recording.recording_topics(path)
     if recording.EVENT_TOPIC in topics:
-        metadata = recording.recording_metadata(path)
-        connections = [c for c in recording.recording_columns(path) if len(c)]
-        if not connections:
+        reader = recording.RecordingReader(path)
+        columns = recording.recording_columns(reader)
+        if not len(columns):
             raise UsageError(f"{path} holds no FSP frames")
-        return _fsp_samples(
-            [c.time_us for c in connections],
-            [np.repeat(c.epoch, 2) for c in connections],
-            _rate_us(metadata.get("expected_rate_hz")),
+        samples = _fsp_samples(path, columns, _rate_us(reader.metadata.get("expected_rate_hz")))
+    elif msp_recording.EVENT_TOPIC in topics:
+        reader = recording.RecordingReader(
+            path, msp_recording.EVENT_TOPIC, msp_recording.METADATA_NAME
         )
-    if msp_recording.EVENT_TOPIC in topics:
-        metadata, connections = msp_recording.msp_replies(path)
+        _, connections = msp_recording.msp_replies(reader)
         times = [
-            np.array([r.t for r in replies if r.cmd == Cmd.RAW_IMU and not r.error])
+            np.array([r.t for r in replies if r.cmd == Cmd.RAW_IMU and not r.error]) * 1e6
             for replies in connections
         ]
         times = [t for t in times if t.size]
         if not times:
             raise UsageError(f"{path} holds no MSP_RAW_IMU replies")
-        return Samples(
+        count = sum(t.size for t in times)
+        samples = Samples(
             "MSP",
             "OBC reception time",
-            np.concatenate(times) * 1e6,
+            np.concatenate(times),
             np.concatenate([np.full(t.size, i) for i, t in enumerate(times)]),
-            np.zeros(sum(t.size for t in times), np.int64),
-            _rate_us(metadata.get("expected_rate_hz")),
+            np.zeros(count, np.int64),
+            np.ones(count - 1, bool),
+            _rate_us(reader.metadata.get("expected_rate_hz")),
         )
-    raise UsageError(
-        f"{path} is an MCAP file but no wftool recording (it has no "
-        f"{recording.EVENT_TOPIC} or {msp_recording.EVENT_TOPIC})"
-    )
+    else:
+        raise UsageError(
+            f"{path} is an MCAP file but no wftool recording (it has no "
+            f"{recording.EVENT_TOPIC} or {msp_recording.EVENT_TOPIC})"
+        )
+    if reader.cut is not None:
+        samples.notes.append(f"the recording is {reader.cut.describe()}; analysed what it holds")
+    return samples
 
 
 def _capture_samples(path: Path) -> Samples:
@@ -213,19 +227,37 @@ def _capture_samples(path: Path) -> Samples:
             f"{path} is neither a wftool recording nor an FSP capture "
             f"(no FSP frame in its {len(data)} bytes)"
         )
-    return _fsp_samples([columns.time_us], [np.repeat(columns.epoch, 2)], None)
+    return _fsp_samples(path, columns, None)
 
 
-def _fsp_samples(
-    times_us: list[np.ndarray], epochs: list[np.ndarray], expected_us: float | None
-) -> Samples:
+def _fsp_samples(path: Path, columns: StateColumns, expected_us: float | None) -> Samples:
+    """The frames of the packets the decoder booked (outliers are not the stream's), and
+    which intervals are the FC's own: all within a packet; between packets, those of one
+    epoch with, under E1, the next `seq` and no frame dropped between (as `verify`)."""
+    booked = np.flatnonzero(~columns.outlier)
+    if booked.size == 0:
+        raise UsageError(f"{path}: no FSP packet follows the stream (all are outliers)")
+    frames = (2 * booked[:, None] + np.arange(2)).reshape(-1)
+    epoch, seq = columns.epoch[booked], columns.seq[booked].astype(np.int64)
+    e1, drops = columns.e1[booked], columns.drops[booked]
+    follows = (epoch[1:] == epoch[:-1]) & (
+        ~(e1[1:] & e1[:-1])
+        | (((seq[1:] - seq[:-1]) % SEQ_MODULUS == 1) & (drops[1:] == drops[:-1]))
+    )
+    counts = np.ones(frames.size - 1, bool)
+    counts[1::2] = follows  # odd intervals run from one packet's second frame to the next's first
+    notes = []
+    if outliers := int(np.count_nonzero(columns.outlier)):
+        notes.append(f"{outliers} outlier packet(s) (not following the stream) left out")
     return Samples(
         "FSP",
         "FC sample time",
-        np.concatenate(times_us).astype(np.float64),
-        np.concatenate([np.full(t.size, i) for i, t in enumerate(times_us)]),
-        np.concatenate(epochs),
+        columns.time_us[frames].astype(np.float64),
+        np.zeros(frames.size, np.int64),
+        np.repeat(epoch, 2),
+        counts,
         expected_us,
+        notes,
     )
 
 
@@ -238,7 +270,8 @@ def _rate_us(text: str | None) -> float | None:
 
 
 def analyse(samples: Samples, source: str, label: str, expected_us: float | None) -> TimingSeries:
-    """Cut `samples` into segments and take the statistics of the longest."""
+    """Cut `samples` into segments and take the statistics of the longest (of the intervals
+    that count)."""
     times = samples.times_us
     if times.size < 2:
         raise UsageError(f"{source}: fewer than two samples")
@@ -246,7 +279,8 @@ def analyse(samples: Samples, source: str, label: str, expected_us: float | None
     new_stream = np.diff(samples.stream) != 0
     reset = ~new_stream & (np.diff(samples.epoch) != 0)
     within = ~new_stream & ~reset
-    median_us = float(np.median(deltas[within])) if within.any() else 0.0
+    counted = within & samples.counts
+    median_us = float(np.median(deltas[counted])) if counted.any() else 0.0
     nominal_us = expected_us or median_us
     gap = within & (deltas > max(GAP_MIN_S * 1e6, GAP_INTERVALS * nominal_us))
     cuts = np.flatnonzero(new_stream | reset | gap)
@@ -254,7 +288,7 @@ def analyse(samples: Samples, source: str, label: str, expected_us: float | None
     ends = np.concatenate([cuts + 1, [times.size]])
     segments = []
     for start, end, cut in zip(starts, ends, [*cuts, None]):
-        part = times[start:end]
+        part = deltas[start : end - 1][counted[start : end - 1]]
         if cut is None:
             reason = "end"
         elif new_stream[cut]:
@@ -265,18 +299,18 @@ def analyse(samples: Samples, source: str, label: str, expected_us: float | None
             reason = f"gap of {deltas[cut] * 1e-6:.3g} s"
         segments.append(
             Segment(
-                float(part[0] - times[0]) * 1e-6,
-                float(part[-1] - part[0]) * 1e-6,
-                int(part.size),
-                interval_stats(np.diff(part)) if part.size > 1 else None,
+                float(times[start] - times[0]) * 1e-6,
+                float(times[end - 1] - times[start]) * 1e-6,
+                int(end - start),
+                interval_stats(part) if part.size else None,
                 reason,
             )
         )
     longest = max(range(len(segments)), key=lambda i: (segments[i].duration_s, -i))
-    part = times[starts[longest] : ends[longest]]
-    if part.size < 2:
+    start, end = starts[longest], ends[longest]
+    if segments[longest].stats is None:
         raise UsageError(f"{source}: no two consecutive samples without a cut between them")
-    notes = []
+    notes = list(samples.notes)
     if len(segments) > 1:
         causes = [s.cut for s in segments[:-1]]
         counts = {c: causes.count(c) for c in ("reconnection", "FC reset")}
@@ -287,15 +321,25 @@ def analyse(samples: Samples, source: str, label: str, expected_us: float | None
             f"split at {what} into {len(segments)} segments; analysed the longest, "
             f"segment {longest + 1} ({segments[longest].duration_s:.1f} s of {total:.1f} s)"
         )
-    deltas_us = np.diff(part)
+    left_out = int(np.count_nonzero(~samples.counts[start : end - 1]))
+    if left_out:
+        notes.append(
+            f"{left_out} interval(s) spanning frames lost in transport or dropped on the FC "
+            "left out of the analysed segment's statistics"
+        )
+    part = times[start:end]
+    counted_here = samples.counts[start : end - 1]
+    deltas_us = np.diff(part)[counted_here]
+    times_s = (part - part[0]) * 1e-6
     return TimingSeries(
         label,
         source,
         samples.protocol,
         samples.clock,
         expected_us,
-        (part - part[0]) * 1e-6,
+        times_s,
         deltas_us,
+        times_s[1:][counted_here],
         interval_stats(deltas_us),
         segments,
         longest,
@@ -482,7 +526,7 @@ def draw_intervals(series: list[TimingSeries], out: Path) -> None:
     figure = Figure(figsize=(10, 1.2 + 2.4 * len(series)), layout="constrained")
     axes = figure.subplots(len(series), 1, sharey=True, squeeze=False)[:, 0]
     for index, (ax, one) in enumerate(zip(axes, series)):
-        t = one.times_s[1:]
+        t = one.delta_times_s
         deltas = one.deltas_us
         over = deltas > top
         ax.plot(t[~over], deltas[~over], ".", markersize=1.5, color=_COLOURS[index % 6], zorder=3)

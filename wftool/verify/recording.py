@@ -292,6 +292,7 @@ class RecordingReader:
         """The topics the file has channels for: from its summary, else from the channels
         written before its first message (wftool registers every channel at the start)."""
         if self._finished:
+            self._handle.seek(0)
             summary = make_reader(self._handle).get_summary()
             self._handle.seek(0)
             if summary is not None:
