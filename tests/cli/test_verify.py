@@ -8,6 +8,7 @@ are signalled run as their own process, as a user starts them.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import os
@@ -17,6 +18,7 @@ import subprocess
 import sys
 import threading
 import time
+from pathlib import Path
 
 import pytest
 from mcap.reader import make_reader
@@ -27,7 +29,6 @@ from rosbags.typesys import Stores, get_typestore
 from tests.conftest import run_cli as run
 from tests.verify.fake_fc import PACKET_S, FakeFc
 from tests.verify.test_rosbag import flight
-from wftool.verify import mcapfile
 from wftool.verify.recording import Event, Recorder
 
 NO_PORT = "socket://127.0.0.1:9"  # nothing listens: reached only if the checks before pass
@@ -216,45 +217,88 @@ def test_a_signal_stops_a_timed_recording_run_cleanly(sig, code, said, capsys, t
     assert frames == rows == imu > 1000
 
 
-def test_a_signal_in_the_middle_of_a_chunk_write_loses_nothing(capsys, tmp_path, monkeypatch):
-    """SIGTERM delivered while the recording writes a chunk: it is written whole, the run
-    stops there and the file is finished."""
-    written = mcapfile._TrackedFile.write
-    fired = []
+def writer_processes(parent: int | None = None) -> list[int]:
+    """The recording writers (`wftool.verify.mcapprocess`) that process `parent` (this
+    one by default) started."""
+    parent = os.getpid() if parent is None else parent
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            started_by = int(stat.read_text().rsplit(")", 1)[1].split()[1])
+            command = (stat.parent / "cmdline").read_bytes()
+        except (OSError, IndexError, ValueError):
+            continue  # it ended meanwhile
+        if started_by == parent and b"mcapprocess" in command:
+            found.append(int(stat.parent.name))
+    return found
 
-    def write(self, data: bytes) -> int:
-        if len(data) < 10_000 or fired:  # not a chunk
-            return written(self, data)
-        fired.append(len(data))
-        half = len(data) // 2
-        written(self, data[:half])
-        os.kill(os.getpid(), signal.SIGTERM)  # its handler runs right here
-        return half + written(self, data[half:])
 
-    monkeypatch.setattr(mcapfile._TrackedFile, "write", write)
+def test_stop_signals_to_the_writer_while_it_writes_chunks_lose_nothing(capsys, tmp_path):
+    """SIGINT, SIGTERM and SIGHUP land on the recording's writer every few ms once it has
+    started (created its file), so also while it writes chunks: it goes on, the run ends
+    as timed, and the file is whole."""
     record, table = tmp_path / "run.mcap", tmp_path / "run.csv"
-    with FakeFc() as fc:
-        code, _, err = run(capsys, "verify", "--stream", "--port", fc.url, "--duration", "20",
-                           "--record", str(record), "--csv", str(table))  # fmt: skip
-    assert fired and code == 143, err
+    done, sent = threading.Event(), []
+
+    def storm() -> None:
+        signals = [signal.SIGINT, signal.SIGTERM, signal.SIGHUP]
+        while not done.wait(0.004):
+            for pid in writer_processes() if record.exists() else ():
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(pid, signals[len(sent) % 3])
+                    sent.append(pid)
+
+    sender = threading.Thread(target=storm)
+    sender.start()
+    try:
+        with FakeFc() as fc:
+            code, out, err = run(capsys, "verify", "--stream", "--port", fc.url, "--duration",
+                                 "8", "--record", str(record), "--csv", str(table))  # fmt: skip
+    finally:
+        done.set()
+        sender.join()
+    assert len(sent) > 300 and code in (0, 1) and ("PASS" in out or "FAIL" in out), err
     frames, rows, imu = recorded(capsys, record, table)
-    assert frames == rows == imu > 500
+    assert frames == rows == imu > 5000
 
 
 def size(path) -> int:
     return path.stat().st_size if path.exists() else 0
 
 
-def test_a_killed_run_leaves_a_recording_replay_reads_as_far_as_it_goes(capsys, tmp_path):
+def kill_while_recording(fc: FakeFc, record: Path, writer: bool) -> None:
+    """SIGKILL a verify run a few chunks into its recording: the run alone, or with its
+    recording's writer (as a power cut would; it runs in a session of its own)."""
+    process = wftool("verify", "--stream", "--port", fc.url, "--duration", "60",
+                     "--record", str(record))  # fmt: skip
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline and size(record) < 300_000:  # a few chunks
+        time.sleep(0.1)
+    for pid in writer_processes(process.pid) if writer else ():
+        os.kill(pid, signal.SIGKILL)
+    process.kill()
+    process.communicate(timeout=30)
+
+
+def test_a_killed_run_leaves_its_recording_finished_by_its_writer(capsys, tmp_path):
+    """The run is killed, its writer is not: it finishes the file with all it was handed."""
     record = tmp_path / "run.mcap"
     with FakeFc() as fc:
-        process = wftool("verify", "--stream", "--port", fc.url, "--duration", "60",
-                         "--record", str(record))  # fmt: skip
-        deadline = time.monotonic() + 30
-        while time.monotonic() < deadline and size(record) < 300_000:  # a few chunks
-            time.sleep(0.1)
-        process.kill()
-        process.communicate(timeout=30)
+        kill_while_recording(fc, record, writer=False)
+    with open(record, "rb") as handle:
+        summary = make_reader(handle).get_summary()
+    assert summary is not None, "not finished: no summary"
+    code, out, err = run(capsys, "replay", str(record), "--json")
+    assert code in (0, 1), err
+    replayed = json.loads(out)
+    assert replayed["frames"] > 1000 and replayed["lost_frames"] == 0
+    assert not any("not finished" in note for note in replayed["verdict"]["notes"])
+
+
+def test_a_killed_run_and_writer_leave_a_recording_replay_reads_as_far_as_it_goes(capsys, tmp_path):
+    record = tmp_path / "run.mcap"
+    with FakeFc() as fc:
+        kill_while_recording(fc, record, writer=True)
     code, out, err = run(capsys, "replay", str(record), "--json")
     assert code in (0, 1), err
     replayed = json.loads(out)

@@ -7,15 +7,17 @@ values and stamps; `wftool replay` must reproduce the run from the same director
 
 from __future__ import annotations
 
-import errno
 import itertools
 import json
 import math
 import random
+import resource
 import shutil
 import subprocess
 import sys
 import textwrap
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -27,7 +29,6 @@ from rosbags.typesys import Stores, get_typestore
 from wftool.errors import RecordingError, UsageError
 from wftool.fsp import SensorFrame, StatePacket
 from wftool.fsp.encoder import encode_state
-from wftool.verify import mcapfile
 from wftool.verify.monitor import StreamMonitor
 from wftool.verify.recording import Event, Recorder, read_recording, replay_recording
 from wftool.verify.ros2 import HealthSampler, StreamHealth, decode_event
@@ -317,31 +318,28 @@ def test_unwritable_or_taken_paths_fail_before_the_run(tmp_path: Path):
     assert (empty / "metadata.yaml").exists()
 
 
-def _fill_disk_after(monkeypatch: pytest.MonkeyPatch, limit: int) -> None:
-    """The MCAP file's writes fail with ENOSPC past `limit` bytes, after a short write."""
-    original = mcapfile._TrackedFile.write
-
-    def write(self, data):
-        room = limit - self.position
-        if len(data) > room:
-            if room > 0:
-                original(self, bytes(data[:room]))
-            raise OSError(errno.ENOSPC, "No space left on device")
-        return original(self, data)
-
-    monkeypatch.setattr(mcapfile._TrackedFile, "write", write)
+@contextmanager
+def file_size_limit(limit: int) -> Iterator[None]:
+    """Processes started within (the recording's writer) may write files of `limit` bytes
+    at most (RLIMIT_FSIZE): a write past it is cut short there and the next fails (EFBIG),
+    as on a full disk, in the kernel."""
+    soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
+    resource.setrlimit(resource.RLIMIT_FSIZE, (limit, hard))
+    try:
+        yield
+    finally:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))
 
 
 @pytest.mark.parametrize("record_format", ["ros2", "json"])
-def test_full_disk_ends_the_run_with_a_readable_file(tmp_path, monkeypatch, record_format):
+def test_full_disk_ends_the_run_with_a_readable_file(tmp_path, record_format):
     reads = flight(6000)
     path = tmp_path / ("run" if record_format == "ros2" else "run.mcap")
-    _fill_disk_after(monkeypatch, 400_000)
-    recorder = Recorder(path, None, {}, record_format=record_format)
-    with pytest.raises(RecordingError, match="finished and readable"):
+    with file_size_limit(400_000):
+        recorder = Recorder(path, None, {}, record_format=record_format)
+    with pytest.raises(RecordingError, match=r"File too large: .* finished and readable"):
         record(recorder, reads)
     recorder.close()
-    monkeypatch.undo()
     mcap = path / "run_0.mcap" if record_format == "ros2" else path
     assert 0 < mcap.stat().st_size <= 400_000 + 64
     _, events = read_recording(path)

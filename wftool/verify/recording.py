@@ -36,7 +36,8 @@ from wftool import __version__
 from wftool.errors import UsageError
 from wftool.extras import require
 from wftool.fsp import ESTIMATORS, SensorFrame, StatePacket
-from wftool.verify.mcapfile import Cut, LinearReader, McapFile, indexed_messages
+from wftool.verify.mcapfile import Cut, LinearReader, indexed_messages
+from wftool.verify.mcapprocess import McapProcess
 from wftool.verify.monitor import StreamMonitor
 from wftool.verify.ros2 import StreamHealth, decode_event
 from wftool.verify.rosbag import RosbagWriter, bag_file
@@ -139,7 +140,7 @@ class Recorder:
     ) -> None:
         # Monotonic OBC times become Unix times in the file, for tools that show dates.
         self._wall_offset = time.time() - time.monotonic()
-        self._writer: McapFile | None = None
+        self._writer: McapProcess | None = None
         self._bag: RosbagWriter | None = None
         self._csv_file: TextIO | None = None
         if record_format not in RECORD_FORMATS:
@@ -151,7 +152,7 @@ class Recorder:
             if mcap_path is not None and record_format == "ros2":
                 self._bag = RosbagWriter(mcap_path, METADATA_NAME, metadata)
             elif mcap_path is not None:
-                self._writer = McapFile(mcap_path, "", f"wftool {__version__}")
+                self._writer = McapProcess(mcap_path, "", f"wftool {__version__}")
                 self._writer.add_metadata(METADATA_NAME, {**metadata, "wftool": __version__})
                 self._frame_channel = self._channel(FRAME_TOPIC, FRAME_SCHEMA)
                 self._event_channel = self._channel(EVENT_TOPIC, EVENT_SCHEMA)

@@ -39,7 +39,7 @@ from wftool import __version__
 from wftool.errors import RecordingError, UsageError
 from wftool.fsp import SensorFrame, StatePacket
 from wftool.verify import ros2
-from wftool.verify.mcapfile import McapFile
+from wftool.verify.mcapprocess import McapProcess
 from wftool.verify.ros2 import (
     BATTERY_TOPIC,
     EVENT_TOPIC,
@@ -111,9 +111,9 @@ class BagFile:
         except OSError as exc:
             raise UsageError(f"cannot write the recording: {exc}") from None
         self._created = created
-        self._out: McapFile | None = None
+        self._out: McapProcess | None = None
         try:
-            self._out = McapFile(self.mcap_path, "ros2", f"wftool {__version__}")
+            self._out = McapProcess(self.mcap_path, "ros2", f"wftool {__version__}")
             self.channels = {
                 topic: self._out.register_channel(
                     topic, "cdr", self._out.register_schema(kind.name, "ros2msg", kind.schema_bytes)
@@ -158,7 +158,7 @@ class BagFile:
         finally:
             self._finish_metadata(out)
 
-    def _finish_metadata(self, out: McapFile) -> None:
+    def _finish_metadata(self, out: McapProcess) -> None:
         if self.metadata_path is None:
             return
         try:
@@ -172,7 +172,7 @@ class BagFile:
                 ) from None
             # The recording already failed and said so; the metadata of the start stays.
 
-    def _write_metadata(self, out: McapFile | None = None) -> None:
+    def _write_metadata(self, out: McapProcess | None = None) -> None:
         if self.metadata_path is None:  # one MCAP file: its own summary says it all
             return
         counts = {topic: 0 for topic in self.topics}
