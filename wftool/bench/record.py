@@ -11,18 +11,33 @@ Sizes are the files on disk after chunk compression, metadata.yaml included.
 Reading back is timed too, in frames/s: `replay` (the recorded events through the
 per-frame decoder and the monitor) and `recording_columns` (the events into NumPy columns,
 with OBC times; needs the analysis extra).
+
+The recorder's CPU counts its writer process (`wftool.verify.mcapprocess`) too: the CPU
+of the children this process waited for is added to its own.
+
+Stalls: what recording costs the thread that reads and stamps. The ROS 2 recording's
+messages are written again, one read's messages at a time, paced by their log times
+(`STALL_SPEED` times real time), by the writer process and by the in-process `McapFile`
+(what recordings used before, written from the reading thread); a read's stall is the
+wall time its messages' `add_message` calls took. The two alternate, `repeat` times; the
+least worst case counts for each.
 """
 
 from __future__ import annotations
 
 import importlib.util
+import os
 import shutil
 import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from mcap.reader import make_reader
+
 from wftool.bench.decode import REALTIME_PACKETS_PER_S, write_capture
+from wftool.verify.mcapfile import McapFile
+from wftool.verify.mcapprocess import McapProcess
 from wftool.verify.monitor import StreamMonitor
 from wftool.verify.recording import (
     RECORD_FORMATS,
@@ -32,8 +47,12 @@ from wftool.verify.recording import (
     replay_recording,
 )
 from wftool.verify.ros2 import HealthSampler
+from wftool.verify.rosbag import bag_file
 
 PACKET_BYTES = 118  # a 116-byte state packet, COBS-framed
+STALL_SPEED = 4.0
+"""The stall replay's pace, times real time (either writer keeps up with it)."""
+STALL_WRITERS = {"writer process": McapProcess, "in-process McapFile": McapFile}
 
 
 @dataclass(frozen=True)
@@ -62,6 +81,21 @@ class FormatFigures:
 
 
 @dataclass(frozen=True)
+class StallFigures:
+    """The reading thread's stalls while one writer records."""
+
+    name: str
+    reads: int
+    worst_s: float
+    p999_s: float
+    """99.9th percentile."""
+    over_1ms: int
+    """Reads stalled longer than 1 ms."""
+    chunks: int
+    """Chunks the file holds (each a stall in the in-process writer)."""
+
+
+@dataclass(frozen=True)
 class RecordBenchResult:
     seconds: float
     chunk_bytes: int
@@ -69,18 +103,19 @@ class RecordBenchResult:
     reference_cpu_s: float
     """Decoding and monitoring alone: the part every format shares."""
     formats: tuple[FormatFigures, ...]
+    stalls: tuple[StallFigures, ...]
 
     def format(self, name: str) -> FormatFigures:
         return next(f for f in self.formats if f.name == name)
 
 
 def _replay(capture: bytes, chunk_bytes: int, recorder: Recorder | None) -> tuple[float, int]:
-    """Process CPU time of one replay, and the frames decoded."""
+    """CPU time of one replay (its writer process's included), and the frames decoded."""
     monitor = StreamMonitor("bench")
     sampler = HealthSampler(monitor)
     step = chunk_bytes / (REALTIME_PACKETS_PER_S * PACKET_BYTES)
     t = 1000.0
-    start = time.process_time()
+    start = _cpu_s()
     monitor.connected(t)
     if recorder is not None:
         recorder.event(Event("connected", t))
@@ -97,7 +132,80 @@ def _replay(capture: bytes, chunk_bytes: int, recorder: Recorder | None) -> tupl
     if recorder is not None:
         recorder.event(Event("disconnected", t))
         recorder.close()
-    return time.process_time() - start, monitor.summary().frames
+    return _cpu_s() - start, monitor.summary().frames
+
+
+def _cpu_s() -> float:
+    """CPU time of this process and of the children it waited for (recording writers)."""
+    times = os.times()
+    return time.process_time() + times.children_user + times.children_system
+
+
+def _reads(recording: Path) -> tuple[list[tuple[str, str, bytes, str, str]], list[list]]:
+    """The channels of an MCAP file (schema name, encoding, data, topic, message encoding)
+    and its messages, (channel index, log time, data), grouped into reads (one log time)."""
+    with open(recording, "rb") as handle:
+        reader = make_reader(handle)
+        summary = reader.get_summary()
+        ids = sorted(summary.channels)
+        channels = []
+        for channel_id in ids:
+            channel = summary.channels[channel_id]
+            schema = summary.schemas[channel.schema_id]
+            channels.append(
+                (schema.name, schema.encoding, schema.data, channel.topic, channel.message_encoding)
+            )
+        index = {channel_id: position for position, channel_id in enumerate(ids)}
+        reads: list[list] = []
+        for _, channel, message in reader.iter_messages(log_time_order=False):
+            entry = (index[channel.id], message.log_time, message.data)
+            if reads and reads[-1][0][1] == message.log_time:
+                reads[-1].append(entry)
+            else:
+                reads.append([entry])
+    return channels, reads
+
+
+def _stalls(
+    writer_type: type[McapFile | McapProcess],
+    path: Path,
+    channels: list[tuple[str, str, bytes, str, str]],
+    reads: list[list],
+) -> list[float]:
+    """Each read's stall (s) while `writer_type` records `reads` to `path`, paced."""
+    writer = writer_type(path, "ros2", "wftool bench")
+    ids = [
+        writer.register_channel(topic, encoding, writer.register_schema(name, schema_type, data))
+        for name, schema_type, data, topic, encoding in channels
+    ]
+    stalls = []
+    first_log = reads[0][0][1]
+    start = time.monotonic()
+    for read in reads:
+        due = start + (read[0][1] - first_log) / 1e9 / STALL_SPEED
+        wait = due - time.monotonic()
+        if wait > 0:
+            time.sleep(wait)
+        woke = time.monotonic()
+        for channel, log_time, data in read:
+            writer.add_message(ids[channel], log_time, data)
+        stalls.append(time.monotonic() - woke)
+    writer.finish()
+    return stalls
+
+
+def _stall_figures(name: str, stalls: list[float], path: Path) -> StallFigures:
+    ordered = sorted(stalls)
+    with open(path, "rb") as handle:
+        chunks = len(make_reader(handle).get_summary().chunk_indexes)
+    return StallFigures(
+        name,
+        len(ordered),
+        ordered[-1],
+        ordered[min(len(ordered) - 1, int(len(ordered) * 0.999))],
+        sum(1 for stall in ordered if stall > 1e-3),
+        chunks,
+    )
 
 
 def _size(path: Path) -> int:
@@ -145,6 +253,14 @@ def run_record_bench(seconds: float, chunk_bytes: int, repeat: int) -> RecordBen
                 replayed, columns = _read_back(path, frames, numpy)
                 replay_rate[name] = max(replay_rate[name], replayed)
                 columns_rate[name] = None if columns is None else max(columns_rate[name], columns)
+        channels, reads = _reads(bag_file(scratch / "run-ros2"))
+        stalls: dict[str, StallFigures] = {}
+        for run in range(repeat):
+            for name, writer_type in STALL_WRITERS.items():
+                path = scratch / f"stalls-{run}-{len(stalls)}.mcap"
+                figures = _stall_figures(name, _stalls(writer_type, path, channels, reads), path)
+                if name not in stalls or figures.worst_s < stalls[name].worst_s:
+                    stalls[name] = figures
     return RecordBenchResult(
         seconds=seconds,
         chunk_bytes=chunk_bytes,
@@ -161,4 +277,5 @@ def run_record_bench(seconds: float, chunk_bytes: int, repeat: int) -> RecordBen
             )
             for name in RECORD_FORMATS
         ),
+        stalls=tuple(stalls[name] for name in STALL_WRITERS),
     )

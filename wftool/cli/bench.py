@@ -318,7 +318,7 @@ def bench_clock(seconds: float, seeds: int, drift: float, repeat: int) -> None:
 )
 def bench_record(seconds: float, chunk: int, repeat: int) -> None:
     """Bytes and CPU per frame of recording, JSON vs ROS 2 MCAP, at 1 kHz."""
-    from wftool.bench.record import run_record_bench
+    from wftool.bench.record import STALL_SPEED, run_record_bench
 
     result = run_record_bench(seconds, chunk, repeat)
     json_figures = result.format("json")
@@ -348,6 +348,28 @@ def bench_record(seconds: float, chunk: int, repeat: int) -> None:
     reference = 1e6 * result.reference_cpu_s / result.frames
     out.print(f"reference (decode + monitor, no recording): {reference:.1f} µs/frame")
     out.print("targets: ROS 2 no larger than JSON; recording <= 5 % of one core at 1 kHz")
+    stalls = Table(
+        title=f"the reading thread's stalls while recording the ROS 2 messages again "
+        f"({STALL_SPEED:g}x real time), least worst of {repeat}"
+    )
+    for column in ("writer", "reads", "chunks", "worst ms", "P99.9 ms", "reads > 1 ms"):
+        stalls.add_column(column, justify="left" if column == "writer" else "right")
+    for figures in result.stalls:
+        stalls.add_row(
+            figures.name,
+            f"{figures.reads:,}",
+            f"{figures.chunks}",
+            f"{1e3 * figures.worst_s:.2f}",
+            f"{1e3 * figures.p999_s:.2f}",
+            f"{figures.over_1ms}",
+        )
+    out.print(stalls)
+    process, in_process = result.stalls
+    out.print(
+        f"worst stall: writer process {process.worst_s / in_process.worst_s:.2f}x the "
+        f"in-process writer's; reads over 1 ms: {process.over_1ms} vs {in_process.over_1ms} "
+        f"({in_process.chunks} chunks); target: no chunk stalls the reading thread"
+    )
 
 
 COMMANDS: list[click.Command] = [bench_group]

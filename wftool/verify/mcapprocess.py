@@ -64,7 +64,7 @@ PIPE_BYTES = 1024 * 1024
 """The pipe's capacity where the system allows it (Linux: F_SETPIPE_SZ): a chunk's worth
 of lag before the caller waits."""
 WAIT_S = 0.001
-"""A batch write taking longer than this waited for the writer (counted in `waits`)."""
+"""A batch write taking longer than this is counted in `waits`."""
 REPLY_TIMEOUT_S = 30.0
 """How long registering a schema or channel waits for the writer's answer."""
 
@@ -93,7 +93,8 @@ class McapProcess:
         self.time_range: tuple[int, int] | None = None
         """(first, last) log time of the messages in the file, ns, once `finish()` returned."""
         self.waits = 0
-        """Batch writes that waited for the writer to catch up."""
+        """Batch writes that took over `WAIT_S`: the writer fell behind (or the machine was
+        busy)."""
         self.waited_s = 0.0
         """Their total time."""
         self._raised = False
@@ -265,8 +266,9 @@ def _grow_pipe(fd: int) -> None:
 
 
 def _say(**reply: Any) -> None:
-    sys.stdout.write(json.dumps(reply) + "\n")
-    sys.stdout.flush()
+    with contextlib.suppress(OSError):  # the caller is gone: nobody to tell
+        sys.stdout.write(json.dumps(reply) + "\n")
+        sys.stdout.flush()
 
 
 def _outcome(mcap: McapFile) -> dict[str, Any]:
@@ -292,6 +294,8 @@ def serve(path: str, profile: str, library: str) -> int:
                 break  # the caller is gone: finish what it handed over
             op, length = _RECORD.unpack(head)
             body = source.read(length)
+            if len(body) < length:
+                break  # the caller died writing it
             if op == _MESSAGE_OP:
                 channel_id, log_time, publish_time = _MESSAGE_FIELDS.unpack_from(body)
                 mcap.add_message(channel_id, log_time, body[fields_size:], publish_time)
