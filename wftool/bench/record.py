@@ -256,8 +256,8 @@ def run_record_bench(seconds: float, chunk_bytes: int, repeat: int) -> RecordBen
         channels, reads = _reads(bag_file(scratch / "run-ros2"))
         stalls: dict[str, StallFigures] = {}
         for run in range(repeat):
-            for name, writer_type in STALL_WRITERS.items():
-                path = scratch / f"stalls-{run}-{len(stalls)}.mcap"
+            for kind, (name, writer_type) in enumerate(STALL_WRITERS.items()):
+                path = scratch / f"stalls-{run}-{kind}.mcap"
                 figures = _stall_figures(name, _stalls(writer_type, path, channels, reads), path)
                 if name not in stalls or figures.worst_s < stalls[name].worst_s:
                     stalls[name] = figures
