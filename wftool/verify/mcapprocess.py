@@ -233,7 +233,10 @@ class McapProcess:
         ids for the setup, and the outcome at the end, which may come at any time."""
         last: dict[str, Any] | None = None
         for line in self._process.stdout:
-            last = json.loads(line)
+            try:
+                last = json.loads(line)
+            except ValueError:
+                continue  # not the writer's word (a library printing): not ours to read
             if "id" in last or "started" in last or "error" in last:
                 self._replies.put(last)
                 continue
