@@ -26,12 +26,22 @@ def test_bench_decode_prints_every_path_and_their_agreement(
     assert "every packet kept" in out and "of which the columns themselves" in out
 
 
-def test_bench_record_prints_both_formats_and_their_read_back(
+def test_bench_record_prints_both_formats_their_read_back_and_both_writers_stalls(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
     code, out, err = run_cli(capsys, "bench", "record", "--seconds", "2", "--repeat", "1")
     assert (code, err) == (0, "")
-    rows = {line.split()[1]: line for line in out.splitlines() if line.startswith("│ ")}
+    formats, stalls = out.split("reference (decode + monitor")
+    rows = {line.split()[1]: line for line in formats.splitlines() if line.startswith("│ ")}
     assert set(rows) == {"ros2", "json"}
     assert "size 1.00x, CPU 1.00x" in rows["json"]  # the reference row
     assert "needs wftool[analysis]" not in out  # columns read back (NumPy is installed)
+    writers = {line.split("│")[1].strip(): line.split("│")[2:-1] for line in
+               stalls.splitlines() if line.startswith("│ ")}  # fmt: skip
+    assert set(writers) == {"writer process", "in-process McapFile"}
+    reads, chunks = (int(cell.replace(",", "")) for cell in writers["writer process"][:2])
+    assert (
+        reads > 1000
+        and chunks >= 1
+        and writers["in-process McapFile"][:2] == writers["writer process"][:2]
+    )  # the same messages, the same chunks
