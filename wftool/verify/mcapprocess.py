@@ -209,7 +209,7 @@ class McapProcess:
             reply = None
             self.failure = f"the recording's writer did not answer within {REPLY_TIMEOUT_S} s"
             self._process.kill()
-        if reply is None or "failed" in reply:
+        if reply is None:  # the writer ended (`failure` says why)
             self._end()
             self._raised = True
             raise UsageError(f"cannot write the recording: {self.failure}")
