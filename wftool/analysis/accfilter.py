@@ -592,7 +592,7 @@ def render_markdown(evaluation: Evaluation) -> str:
             "M7 cycles/sample",
             "M7 µs/sample",
             "M7 CPU %",
-            "M7 vs host",
+            "M7 output − host output (max)",
         ],
         body,
     )
