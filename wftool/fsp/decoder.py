@@ -210,6 +210,9 @@ class StateDecoder:
         packets = list(parsed)
         if not packets:
             return packets
+        book = self._book
+        last = self._last
+        last_reading = self._last_reading
         for packet in packets:
             packet.arrival_time = arrival_time
             first, second = packet.frames
@@ -221,20 +224,22 @@ class StateDecoder:
                 packet.seq if packet.e1 else None,
                 packet.drops,
             )
-            last, suspect = self._last, self._suspect
-            if last is None or follows(self._last_reading, now):
+            if last is None or follows(last_reading, now):
                 self._suspect = None  # an earlier suspect stays an outlier
-                self._book(packet, now, last)
-            elif suspect is not None and follows(self._suspect_reading, now):
+                book(packet, now, last)
+            elif (suspect := self._suspect) is not None and follows(self._suspect_reading, now):
                 self._suspect = None  # it began what comes next: book it, then this one
                 suspect.outlier = False
                 self.stats.outliers -= 1
                 before = self._suspect_reading
-                self._book(suspect, before, last, restarted(self._last_reading, before))
-                self._book(packet, now, suspect)
+                book(suspect, before, last, restarted(last_reading, before))
+                book(packet, now, suspect)
             else:
                 self._suspect, self._suspect_reading = packet, now
                 self._provisional(packet, last)
+                continue
+            last, last_reading = packet, now
+        self._last, self._last_reading = last, last_reading
         stats = self.stats
         stats.e1 = packets[-1].e1
         stats.packets += len(packets)
@@ -246,28 +251,31 @@ class StateDecoder:
     def _book(
         self, packet: StatePacket, now: Reading, last: StatePacket | None, restart: bool = False
     ) -> None:
-        """Put `packet` (`now` its reading) in the books after `last`, the newest in them."""
+        """Put `packet` (`now` its reading) in the books after `last`, the newest in them;
+        the caller makes it the newest."""
         # Unwrap the oldest instant in the packet; the others follow it within a period.
         first, second = packet.frames
-        base_raw = first.values[0]
-        arrival_time = packet.arrival_time
-        base_us, reset = self._fc_clock.unwrap(base_raw, arrival_time, restarted=restart)
-        clock = self.clock
+        base_raw, period_us, arrival_time, _, _ = now
+        if restart:
+            base_us, reset = self._fc_clock.unwrap(base_raw, arrival_time, restarted=True)
+        else:
+            base_us, reset = self._fc_clock.unwrap(base_raw, arrival_time)
         if reset:
             self._epoch += 1
             last = None
-            clock.reset()
+            self.clock.reset()
         first.time_us = base_us
-        second.time_us = second_us = base_us + now[1]
+        second.time_us = second_us = base_us + period_us
         packet.time_us = time_us = base_us + (packet.tx_time_us - base_raw) % U32
         packet.epoch = self._epoch
         if arrival_time is not None:
+            clock = self.clock
             clock.observe(time_us, arrival_time)
-            first.obc_time = clock.to_obc(base_us)
-            second.obc_time = clock.to_obc(second_us)
+            to_obc = clock.to_obc
+            first.obc_time = to_obc(base_us)
+            second.obc_time = to_obc(second_us)
         if last is not None:
             self._count_loss(last, packet, base_us, second_us)
-        self._last, self._last_reading = packet, now
 
     def _provisional(self, packet: StatePacket, last: StatePacket) -> None:
         """Time `packet` as the nearest instant to `last` and mark it an outlier."""
