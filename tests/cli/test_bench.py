@@ -23,6 +23,7 @@ def test_bench_decode_prints_every_path_and_their_agreement(
     for path in ("per-frame API", "columnar", "OBC clock alignment", "HIGHRES_IMU"):
         assert path in out
     assert "columnar and per-frame totals agree: yes (630 packets, 0 rejected" in out
+    assert "OBC times identical to the per-frame decoder's: yes" in out
     assert "every packet kept" in out and "of which the columns themselves" in out
 
 

@@ -13,6 +13,7 @@ import copy
 import dataclasses
 import math
 import random
+from collections import deque
 from dataclasses import dataclass, field
 
 import pytest
@@ -419,3 +420,70 @@ def test_estimators_by_name():
     assert isinstance(StateDecoder("kalman").clock, KalmanClockEstimator)
     with pytest.raises(UsageError, match="unknown clock estimator 'ntp': choose one of envelope"):
         make_estimator("ntp")
+
+
+def _inner(estimator: EnvelopeClockEstimator) -> dict:
+    """Everything the estimator holds, hull and queues as lists."""
+    held = {}
+    for name, value in vars(estimator).items():
+        if isinstance(value, SlidingLowerHull):
+            value = (list(value.points), list(value.hull))
+        elif isinstance(value, deque):
+            value = list(value)
+        held[name] = value
+    return held
+
+
+def _disturbed(model: str, seed: int, seconds: float) -> ClockTrace:
+    """A trace with everything the envelope decides on spliced in: an OBC step back and
+    one forward, a stall, lone early arrivals, and bad input."""
+    trace = simulate(MODEL[model], seed, seconds, drift_ppm_per_min=30.0)
+    count = len(trace.arrival)
+    splice_step(trace, count // 3, -0.05)
+    splice_step(trace, 2 * count // 3, 0.05)
+    stall = range(count // 2, count // 2 + 800)
+    for i in stall:
+        trace.arrival[i] = trace.arrival[stall[-1]]
+    for i in range(count // 4, count, 1500):
+        trace.arrival[i] = trace.arrival[i - 1] - 0.0002
+    for i in range(count // 5, count, 2100):
+        trace.arrival[i] = math.nan
+    for i in range(count // 6, count, 2500):
+        trace.fc_time_us[i] = trace.fc_time_us[i - 1]  # an FC time again
+    return trace
+
+
+@pytest.mark.parametrize(
+    ("model", "seed"), [("exponential", 20), ("reads 1 ms", 21), ("reads 16 ms", 22)]
+)
+def test_track_says_what_observe_and_to_obc_say(model: str, seed: int):
+    """The batch path (the columnar decoder's) gives the very floats, and leaves the very
+    state, of the per-point path, through steps, stalls, outliers, bad input and resets."""
+    np = pytest.importorskip("numpy", reason="track takes NumPy arrays")
+    trace = _disturbed(model, seed, 150.0)
+    fc_us = np.array(trace.fc_time_us, np.int64)
+    arrival = np.array(trace.arrival)
+    at_us = np.stack([fc_us - 2 * PERIOD_US, fc_us - PERIOD_US, fc_us + 7], axis=1)
+    one, batch = EnvelopeClockEstimator(), EnvelopeClockEstimator()
+    expected = []
+    rng = random.Random(seed)
+    start = 0
+    reset_at = len(fc_us) * 4 // 5
+    for index, (fc, t) in enumerate(zip(fc_us.tolist(), arrival.tolist())):
+        if index == reset_at:
+            one.reset()
+        one.observe(fc, t)
+        expected.append([one.to_obc(at) for at in at_us[index].tolist()])
+    got = []
+    while start < len(fc_us):
+        end = min(start + rng.choice([1, 2, 50, 700, 5000]), len(fc_us))
+        if start < reset_at < end:
+            end = reset_at
+        if start == reset_at:
+            batch.reset()
+        got.append(batch.track(fc_us[start:end], arrival[start:end], at_us[start:end]))
+        start = end
+    expected_array = np.array([[math.nan if t is None else t for t in row] for row in expected])
+    assert np.array_equal(np.concatenate(got), expected_array, equal_nan=True)
+    assert same(one.state, batch.state) and one.state.steps >= 2
+    assert _inner(one) == _inner(batch)

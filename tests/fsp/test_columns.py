@@ -22,8 +22,11 @@ from mcap.reader import make_reader
 
 from tests.conftest import run_cli
 from tests.fsp.strategies import corruption, harm, state_packets
+from tests.fsp.test_clock import MODEL as CLOCK_MODELS
+from tests.fsp.test_clock import splice_step
 from tests.fsp.test_decoder import frame
 from tests.verify.test_recording import record_two_connections
+from wftool.bench.clock import simulate
 from wftool.errors import UsageError
 from wftool.fsp import ClockEstimator, ClockState, StateDecoder, StatePacket, StreamStats
 from wftool.fsp.encoder import encode_state
@@ -287,6 +290,29 @@ def test_an_over_long_chunk_is_rejected_as_in_the_reads(split: int) -> None:
     cut = len(encode_state(packets[0])) + split
     stats = check(wire, [cut, len(wire) - cut])
     assert stats.errors == 1 and stats.packets == 4
+
+
+def test_a_long_noisy_flight_is_timed_as_state_decoder_times_it() -> None:
+    """Long enough for the envelope estimator to lock, track, drop its line and step, with
+    a repeated packet and an FC reboot: the batch path of the default estimator agrees."""
+    trace = simulate(CLOCK_MODELS["reads 1 ms"], 30, 40.0)
+    splice_step(trace, len(trace.arrival) // 2, -0.05)
+    wire, sizes, times = b"", [], []
+    reboot = 3 * len(trace.arrival) // 4
+    for index, (fc_us, arrival) in enumerate(zip(trace.fc_time_us, trace.arrival)):
+        seq = index
+        if index >= reboot:  # the FC rebooted: its clock and sequence start over
+            fc_us, seq = fc_us - trace.fc_time_us[reboot] + 2_000_000, index - reboot
+        sample_us = fc_us - PERIOD - 120
+        frames = (frame(sample_us % 2**32), frame((sample_us + PERIOD) % 2**32))
+        packet = encode_state(StatePacket(fc_us % 2**32, frames, seq % 2**24, True))
+        if index == 5000:
+            packet += wire[-118 * 100 : -118 * 99]  # an old packet sent again
+        wire += packet
+        sizes.append(len(packet))
+        times.append(arrival)
+    stats = check(wire, sizes, times)
+    assert (stats.resets, stats.outliers) == (1, 1)
 
 
 class LatestArrival:

@@ -6,8 +6,9 @@ and feeds them with real-time arrival stamps. Reading, `StateDecoder.feed` and w
 the frames are timed. Memory is `tracemalloc`'s peak, in runs of their own.
 
 The columnar path (`fsp.columns`) decodes the same file, with the same reads and stamps,
-into arrays; the reference from outside is pymavlink parsing a stream of as many
-`HIGHRES_IMU` messages (one IMU sample each) made by its own encoder.
+into arrays, and is checked (untimed) to hold exactly the per-frame decoder's FC and OBC
+times; the reference from outside is pymavlink parsing a stream of as many `HIGHRES_IMU`
+messages (one IMU sample each) made by its own encoder.
 """
 
 from __future__ import annotations
@@ -85,13 +86,12 @@ def write_capture(path: Path, packets: int, tunnel: bool) -> None:
 
 
 def run_decode_bench(
-    capture: Path, chunk_bytes: int, aligned: bool = True, keep: bool = False
+    capture: Path, chunk_bytes: int, aligned: bool = True, kept: list[StatePacket] | None = None
 ) -> DecodeBenchResult:
     """Replay `capture` once through a fresh decoder; `aligned` stamps the reads, so OBC
-    times are estimated too; `keep` holds on to every packet, as an analysis that wanted
-    them all would (for the memory figure)."""
+    times are estimated too; every packet goes into `kept` if given, as an analysis that
+    wanted them all would keep them (for the memory figure)."""
     decoder = StateDecoder()
-    kept: list[StatePacket] = []
     frames = 0
     clock = time.perf_counter
     _, arrivals = _reads(capture.stat().st_size, chunk_bytes)
@@ -102,7 +102,7 @@ def run_decode_bench(
             for packet in packets:
                 for _frame_out in packet.frames:
                     frames += 1
-            if keep:
+            if kept is not None:
                 kept += packets
         elapsed = clock() - start
     stats = decoder.stats
@@ -234,6 +234,8 @@ class DecodeComparison:
     """Path → its runs; the paths took turns, so noise hits them alike."""
     memory: dict[str, int]
     """What ran → tracemalloc peak (bytes) of one run of its own."""
+    same_times: bool
+    """Whether the columns' FC and OBC times are exactly the per-frame decoder's."""
 
     def best(self, path: str) -> float:
         return max(r.frames_per_s for r in self.runs[path])
@@ -277,8 +279,27 @@ def compare_decoders(
         memory = {
             "per-frame API, frames walked, none kept": traced_peak_bytes(paths[PER_FRAME_ALIGNED]),
             "per-frame API, every packet kept": traced_peak_bytes(
-                lambda: run_decode_bench(capture, chunk_bytes, keep=True)
+                lambda: run_decode_bench(capture, chunk_bytes, kept=[])
             ),
             "columnar, + OBC clock alignment": traced_peak_bytes(paths[COLUMNAR_ALIGNED]),
         }
-        return DecodeComparison(2 * packets, capture.stat().st_size, runs, memory)
+        return DecodeComparison(
+            2 * packets, capture.stat().st_size, runs, memory, _same_times(capture, chunk_bytes)
+        )
+
+
+def _same_times(capture: Path, chunk_bytes: int) -> bool:
+    """Whether the columns hold exactly the FC and OBC times the per-frame decoder gives."""
+    import numpy as np
+
+    from wftool.fsp.columns import decode_columns
+
+    kept: list[StatePacket] = []
+    run_decode_bench(capture, chunk_bytes, kept=kept)
+    frames = [frame for packet in kept for frame in packet.frames]
+    sizes, arrivals = _reads(capture.stat().st_size, chunk_bytes)
+    columns = decode_columns(capture.read_bytes(), sizes, arrivals)
+    obc_time = np.array([math.nan if f.obc_time is None else f.obc_time for f in frames])
+    return columns.time_us.tolist() == [f.time_us for f in frames] and np.array_equal(
+        columns.obc_time, obc_time, equal_nan=True
+    )

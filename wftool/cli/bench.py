@@ -112,6 +112,10 @@ def bench_decode(minutes: float, chunk: int, tunnel: bool, repeat: int) -> None:
         f"({stats.packets:,} packets, {stats.errors} rejected, {stats.lost_frames} lost, "
         f"{stats.fc_drops} FC drops, {stats.wraps} wrap(s), {stats.resets} reset(s))"
     )
+    out.print(
+        "columnar FC and OBC times identical to the per-frame decoder's: "
+        f"{'yes' if result.same_times else 'NO'}"
+    )
     held = result.runs[COLUMNAR_ALIGNED][0].result_bytes
     out.print("memory, tracemalloc peak of one more run each (Python and NumPy allocations):")
     for what, peak in result.memory.items():

@@ -14,9 +14,12 @@ import math
 from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 from wftool.errors import UsageError
+
+if TYPE_CHECKING:
+    import numpy as np
 
 U32 = 1 << 32
 _HALF_U32 = 1 << 31
@@ -233,6 +236,21 @@ class KalmanClockEstimator:
             steps=self.reinits,  # it re-initialises on a residual > 0.5 s: a step
             lock_time_s=self._lock_time,
         )
+
+
+@runtime_checkable
+class BatchObserver(Protocol):
+    """What an estimator offers to be told a run of packets at once (the columnar decoder).
+
+    `track` gives exactly what `observe` of each packet in turn, each followed by `to_obc`
+    of that packet's row of `at_us`, would give (NaN for None), leaving the estimator as
+    they would: it is a faster way to say the same, not another estimate.
+    """
+
+    def track(self, fc_time_us: np.ndarray, obc_time: np.ndarray, at_us: np.ndarray) -> np.ndarray:
+        """`fc_time_us` (int64) and `obc_time` (float64) per packet; `at_us` (int64, one
+        row per packet) the FC instants to map after each; float64 like `at_us`."""
+        ...
 
 
 Point = tuple[int, float]
@@ -566,6 +584,72 @@ class EnvelopeClockEstimator:
         if self._rate_known:  # keep the rate until the new window is as long as the old
             self._rate_span_us = self._window_us
         self._restart(points, u, obc_time)
+
+    def track(self, fc_time_us: np.ndarray, obc_time: np.ndarray, at_us: np.ndarray) -> np.ndarray:
+        """`BatchObserver.track`: runs of points that only lower the line or raise nothing
+        are done by NumPy, each decision (a bucket's end, a point the tracked line drops
+        to, a rejected point) by `observe` itself, so both give the same floats."""
+        import numpy as np
+
+        count = len(fc_time_us)
+        out = np.full(at_us.shape, np.nan)
+        index = 0
+        while index < count and self._x0 is None:  # the first point anchors u and v
+            self.observe(int(fc_time_us[index]), float(obc_time[index]))
+            out[index] = self._map(np, at_us[index])
+            index += 1
+        if index == count:
+            return out
+        x0, y0 = self._x0, self._y0
+        u = fc_time_us - x0
+        v = (obc_time - y0) * 1e6 - u
+        at_u = at_us - x0
+        # A point is surely accepted when its time is finite and u beats every u before it.
+        before = np.maximum.accumulate(np.concatenate(([self._last_u], u[:-1])))
+        irregular = np.flatnonzero(~np.isfinite(obc_time) | (u <= before))
+        while index < count:
+            next_irregular = np.searchsorted(irregular, index)
+            stop = int(irregular[next_irregular]) if next_irregular < len(irregular) else count
+            # Within [index, end) u rises and stays inside the open bucket.
+            end = index + int(np.searchsorted(u[index:stop], self._bucket_end))
+            if end == index:  # a decision, or an irregular point: the per-point path
+                self.observe(int(fc_time_us[index]), float(obc_time[index]))
+                out[index] = self._map(np, at_us[index])
+                index += 1
+                continue
+            slope, intercept = self._slope, self._intercept
+            key = v[index:end] - slope * u[index:end]
+            if self._tracking:
+                # The first point below the line makes a decision: run up to it.
+                below = np.flatnonzero(key < intercept)
+                if len(below):
+                    end = index + int(below[0])
+                    key = key[: end - index]
+                    if end == index:
+                        self.observe(int(fc_time_us[index]), float(obc_time[index]))
+                        out[index] = self._map(np, at_us[index])
+                        index += 1
+                        continue
+                lines = np.full(end - index, intercept)
+            else:
+                lines = np.minimum.accumulate(np.minimum(key, intercept))
+            last = end - 1
+            self._last_u = int(u[last])
+            self._excess = float(key[-1] - (lines[-2] if len(lines) > 1 else intercept))
+            self._intercept = float(lines[-1])
+            lowest = int(np.argmin(key))
+            if key[lowest] < self._best_key:
+                self._best_key = float(key[lowest])
+                self._best = (int(u[index + lowest]), float(v[index + lowest]))
+            at = at_u[index:end]
+            out[index:end] = y0 + ((at + lines[:, None]) + slope * at) * 1e-6
+            index = end
+        return out
+
+    def _map(self, np: Any, at_us: np.ndarray) -> np.ndarray:
+        """`to_obc` of each of `at_us`, NaN for None."""
+        mapped = [self.to_obc(int(t)) for t in at_us]
+        return np.array([math.nan if t is None else t for t in mapped])
 
     def to_obc(self, fc_time_us: int) -> float | None:
         if self._x0 is None:

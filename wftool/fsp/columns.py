@@ -33,7 +33,14 @@ from typing import TYPE_CHECKING, Any
 from cobs import cobs
 
 from wftool.extras import require
-from wftool.fsp.clock import STEADY_GAP_S, STEADY_STEP_US, U32, ClockEstimator, FcClock
+from wftool.fsp.clock import (
+    STEADY_GAP_S,
+    STEADY_STEP_US,
+    U32,
+    BatchObserver,
+    ClockEstimator,
+    FcClock,
+)
 from wftool.fsp.crc import crc8_check_words
 from wftool.fsp.decoder import (
     JITTER_US,
@@ -624,10 +631,47 @@ def _obc_times(
 ) -> np.ndarray:
     """Each frame's OBC time from `clock`, told packet by packet what `StateDecoder` tells it.
 
-    The estimator is sequential and may be any `ClockEstimator`, so this is a Python loop
-    over packets, a block at a time so that the Python numbers it needs stay few; its
-    answers go straight into a float array.
+    An estimator that takes runs of packets (`BatchObserver`, the default one does) gets
+    each run of booked packets of one epoch at once; any other is told packet by packet.
     """
+    if not isinstance(clock, BatchObserver):
+        return _obc_times_one_by_one(
+            np, clock, reset, outlier, packet_time_us, arrival_time, time_us
+        )
+    frame_us = time_us.reshape(-1, 2)
+    out = np.empty(frame_us.shape)
+    start = 0
+    for index in [*np.flatnonzero(reset | outlier).tolist(), len(reset)]:
+        if start < index:
+            out[start:index] = clock.track(
+                packet_time_us[start:index], arrival_time[start:index], frame_us[start:index]
+            )
+        if index == len(reset):
+            break
+        if reset[index]:  # booked: the next run starts with it
+            clock.reset()
+            start = index
+        else:  # an outlier: timed, not observed
+            out[index] = [_nan_for_none(clock.to_obc(int(t))) for t in frame_us[index]]
+            start = index + 1
+    return out.reshape(-1)
+
+
+def _nan_for_none(value: float | None) -> float:
+    return math.nan if value is None else value
+
+
+def _obc_times_one_by_one(
+    np: Any,
+    clock: ClockEstimator,
+    reset: np.ndarray,
+    outlier: np.ndarray,
+    packet_time_us: np.ndarray,
+    arrival_time: np.ndarray,
+    time_us: np.ndarray,
+) -> np.ndarray:
+    """`_obc_times` for any estimator: a Python loop over packets, a block at a time so
+    that the Python numbers it needs stay few; its answers go straight into a float array."""
     observe, to_obc, forget = clock.observe, clock.to_obc, clock.reset
     out = array("d")
     append = out.append
