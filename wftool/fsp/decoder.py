@@ -193,7 +193,7 @@ class StateDecoder:
         self.stats.bytes += len(data)
         payloads = self._deframer.feed(data)
         if self.round_trips is None:
-            return self._account([parse_state(payload) for payload in payloads], arrival_time)
+            return self._account(map(parse_state, payloads), arrival_time)
         packets: list[StatePacket] = []
         start = 0
         for index, payload in enumerate(payloads):
@@ -274,8 +274,20 @@ class StateDecoder:
             to_obc = clock.to_obc
             first.obc_time = to_obc(base_us)
             second.obc_time = to_obc(second_us)
-        if last is not None:
-            self._count_loss(last, packet, base_us, second_us)
+        if last is None:
+            return
+        # Loss since `last`: by E1 seq and drops, else by the time gap.
+        stats = self.stats
+        if packet.e1 and last.e1:
+            gap = (packet.seq - last.seq - 1) % SEQ_MODULUS
+            if gap and gap < _SEQ_HALF:  # a larger gap is a repeat or reorder: nothing lost
+                stats.lost_packets += gap
+                stats.lost_frames += 2 * gap
+            if packet.drops != last.drops:
+                stats.fc_drops += (packet.drops - last.drops) % DROPS_MODULUS
+        elif period_us > 0:
+            missing = round((base_us - last.frames[1].time_us) / period_us) - 1
+            stats.lost_frames += max(0, missing)
 
     def _provisional(self, packet: StatePacket, last: StatePacket) -> None:
         """Time `packet` as the nearest instant to `last` and mark it an outlier."""
@@ -321,23 +333,6 @@ class StateDecoder:
             self.clock.observe_round_trip(
                 trip.obc_sent, trip.fc_received_us, trip.fc_sent_us, trip.obc_received
             )
-
-    def _count_loss(
-        self, last: StatePacket, packet: StatePacket, base_us: int, second_us: int
-    ) -> None:
-        stats = self.stats
-        if packet.e1 and last.e1:
-            gap = (packet.seq - last.seq - 1) % SEQ_MODULUS
-            if gap and gap < _SEQ_HALF:  # a larger gap is a repeat or reorder: nothing lost
-                stats.lost_packets += gap
-                stats.lost_frames += 2 * gap
-            if packet.drops != last.drops:
-                stats.fc_drops += (packet.drops - last.drops) % DROPS_MODULUS
-        else:
-            period = second_us - base_us
-            if period > 0:
-                missing = round((base_us - last.frames[1].time_us) / period) - 1
-                stats.lost_frames += max(0, missing)
 
 
 class CommandDecoder:
