@@ -14,7 +14,7 @@ import math
 from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 from wftool.errors import UsageError
 
@@ -588,68 +588,65 @@ class EnvelopeClockEstimator:
     def track(self, fc_time_us: np.ndarray, obc_time: np.ndarray, at_us: np.ndarray) -> np.ndarray:
         """`BatchObserver.track`: runs of points that only lower the line or raise nothing
         are done by NumPy, each decision (a bucket's end, a point the tracked line drops
-        to, a rejected point) by `observe` itself, so both give the same floats."""
+        to, a rejected point) by `observe` itself; the line after each packet is kept and
+        `to_obc`'s formula applied to all at the end, so both give the same floats."""
         import numpy as np
 
         count = len(fc_time_us)
         out = np.full(at_us.shape, np.nan)
-        index = 0
+        lines, slopes = np.empty(count), np.empty(count)
+        index = mapped = 0  # mapped: the first packet after which to_obc answers
         while index < count and self._x0 is None:  # the first point anchors u and v
             self.observe(int(fc_time_us[index]), float(obc_time[index]))
-            out[index] = self._map(np, at_us[index])
+            lines[index], slopes[index] = self._intercept, self._slope
             index += 1
-        if index == count:
+            mapped = index - (self._x0 is not None)
+        if self._x0 is None:
             return out
         x0, y0 = self._x0, self._y0
         u = fc_time_us - x0
         v = (obc_time - y0) * 1e6 - u
-        at_u = at_us - x0
         # A point is surely accepted when its time is finite and u beats every u before it.
         before = np.maximum.accumulate(np.concatenate(([self._last_u], u[:-1])))
-        irregular = np.flatnonzero(~np.isfinite(obc_time) | (u <= before))
+        irregular = np.flatnonzero(~np.isfinite(obc_time) | (u <= before)).tolist()
+        irregular.append(count)
+        next_irregular = 0
         while index < count:
-            next_irregular = np.searchsorted(irregular, index)
-            stop = int(irregular[next_irregular]) if next_irregular < len(irregular) else count
+            while irregular[next_irregular] < index:
+                next_irregular += 1
+            stop = irregular[next_irregular]
             # Within [index, end) u rises and stays inside the open bucket.
             end = index + int(np.searchsorted(u[index:stop], self._bucket_end))
-            if end == index:  # a decision, or an irregular point: the per-point path
-                self.observe(int(fc_time_us[index]), float(obc_time[index]))
-                out[index] = self._map(np, at_us[index])
-                index += 1
-                continue
             slope, intercept = self._slope, self._intercept
-            key = v[index:end] - slope * u[index:end]
-            if self._tracking:
+            if end > index and self._tracking:
                 # The first point below the line makes a decision: run up to it.
+                key = v[index:end] - slope * u[index:end]
                 below = np.flatnonzero(key < intercept)
                 if len(below):
                     end = index + int(below[0])
                     key = key[: end - index]
-                    if end == index:
-                        self.observe(int(fc_time_us[index]), float(obc_time[index]))
-                        out[index] = self._map(np, at_us[index])
-                        index += 1
-                        continue
-                lines = np.full(end - index, intercept)
+            if end == index:  # a decision, or an irregular point: the per-point path
+                self.observe(int(fc_time_us[index]), float(obc_time[index]))
+                lines[index], slopes[index] = self._intercept, self._slope
+                index += 1
+                continue
+            if self._tracking:
+                run = np.full(end - index, intercept)
             else:
-                lines = np.minimum.accumulate(np.minimum(key, intercept))
-            last = end - 1
-            self._last_u = int(u[last])
-            self._excess = float(key[-1] - (lines[-2] if len(lines) > 1 else intercept))
-            self._intercept = float(lines[-1])
+                key = v[index:end] - slope * u[index:end]
+                run = np.minimum.accumulate(np.minimum(key, intercept))
+            self._last_u = int(u[end - 1])
+            self._excess = float(key[-1] - (run[-2] if len(run) > 1 else intercept))
+            self._intercept = float(run[-1])
             lowest = int(np.argmin(key))
             if key[lowest] < self._best_key:
                 self._best_key = float(key[lowest])
                 self._best = (int(u[index + lowest]), float(v[index + lowest]))
-            at = at_u[index:end]
-            out[index:end] = y0 + ((at + lines[:, None]) + slope * at) * 1e-6
+            lines[index:end], slopes[index:end] = run, slope
             index = end
+        at = at_us[mapped:] - x0  # what to_obc computes, packet by packet
+        out[mapped:] = y0 + ((at + lines[mapped:, None]) + slopes[mapped:, None] * at) * 1e-6
         return out
-
-    def _map(self, np: Any, at_us: np.ndarray) -> np.ndarray:
-        """`to_obc` of each of `at_us`, NaN for None."""
-        mapped = [self.to_obc(int(t)) for t in at_us]
-        return np.array([math.nan if t is None else t for t in mapped])
 
     def to_obc(self, fc_time_us: int) -> float | None:
         if self._x0 is None:
