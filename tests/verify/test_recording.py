@@ -10,10 +10,21 @@ import pytest
 from mcap.reader import make_reader
 
 from tests.fsp.test_twoway import RC
+from tests.verify.data.make_recordings import PORT, RECORDINGS, events
 from tests.verify.test_monitor import feed_steady, feed_two_way
 from wftool.errors import UsageError
 from wftool.verify.monitor import StreamMonitor
-from wftool.verify.recording import FRAME_TOPIC, Event, Recorder, replay_recording, run_metadata
+from wftool.verify.recording import (
+    FRAME_TOPIC,
+    Event,
+    Recorder,
+    RecordingReader,
+    recording_columns,
+    replay_recording,
+    run_metadata,
+)
+
+DATA = Path(__file__).parent / "data"
 
 
 class RecordingMonitor(StreamMonitor):
@@ -107,3 +118,29 @@ def test_replay_pairs_time_replies_with_the_recorded_commands(tmp_path: Path, re
     assert replayed.round_trip is not None and replayed.round_trip.count > 200
     assert replayed.two_way == live.summary().two_way
     assert replayed.round_trip == live.summary().round_trip
+
+
+@pytest.mark.parametrize("name", sorted(RECORDINGS))
+def test_recordings_in_an_earlier_layout_still_read(name: str):
+    """Files as wftool 3cce0e6 wrote them (tests/verify/data/make_recordings.py): one ROS 2
+    `StreamEvent` per event in the frames' chunks, or JSON. Every event comes back, replay
+    gives what the live run gave, and the columns what the decoder fed those reads gives."""
+    path = DATA / name
+    expected = events()
+    assert list(RecordingReader(path).events()) == expected
+    live = StreamMonitor(PORT)
+    for event in expected:
+        if event.kind == "connected":
+            live.connected(event.t)
+        elif event.kind == "disconnected":
+            live.disconnected(event.t)
+        elif event.kind == "bytes":
+            live.feed(event.data, event.t)
+    assert replay_recording(path).summary() == live.summary()
+    pytest.importorskip("numpy", reason="columns need wftool[analysis]")
+    from tests.fsp.test_columns import assert_agree, reference
+
+    reads = [e for e in expected if e.kind == "bytes"]
+    sizes, times = [len(e.data) for e in reads], [e.t for e in reads]
+    assert_agree(recording_columns(path), *reference(b"".join(e.data for e in reads), sizes,
+                                                      times, connections=[20]))  # fmt: skip

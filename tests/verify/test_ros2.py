@@ -11,6 +11,7 @@ import math
 
 import pytest
 from hypothesis import given, settings
+from hypothesis import strategies as st
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from tests.fsp.strategies import frames
@@ -26,6 +27,7 @@ ALL_TYPES = (
     ros2.ATTITUDE,
     ros2.STREAM_HEALTH,
     ros2.STREAM_EVENT,
+    ros2.STREAM_EVENTS,
 )
 
 
@@ -158,6 +160,50 @@ def test_event_round_trip_and_rosbags_agree(store, kind, data, rc):
     assert ros2.EVENT_KINDS[decoded.kind] == kind
     assert bytes(decoded.data) == data and tuple(decoded.rc) == rc
     assert store.serialize_cdr(decoded, "wftool_msgs/msg/StreamEvent") == message
+
+
+def _event(kind: str, t: float, data: bytes, rc: list[int]) -> tuple:
+    """Data only on a read, RC only on a command."""
+    return (kind, t, data if kind == "bytes" else b"", tuple(rc) if kind == "command" else ())
+
+
+event_batches = st.lists(
+    st.builds(
+        _event,
+        st.sampled_from(ros2.EVENT_KINDS),
+        st.floats(0.0, 1e7),
+        st.binary(max_size=300),
+        st.lists(st.integers(-32768, 32767), max_size=8),
+    ),
+    max_size=40,
+)
+
+
+@settings(max_examples=200, deadline=None)
+@given(events=event_batches)
+def test_event_batches_round_trip_and_rosbags_agree(events):
+    """A `StreamEvents` batch: our decoder gives the events back; rosbags, from the
+    definition alone, reads the same arrays and writes the very same bytes."""
+    store = typestore_of(ros2.STREAM_EVENTS)
+    message = ros2.encode_events(events)
+    assert ros2.decode_events(message).events() == events
+    decoded = store.deserialize_cdr(message, "wftool_msgs/msg/StreamEvents")
+    assert decoded.t.tolist() == [t for _, t, _, _ in events]
+    assert [ros2.EVENT_KINDS[k] for k in decoded.kind.tolist()] == [k for k, *_ in events]
+    assert bytes(decoded.data) == b"".join(data for _, _, data, _ in events)
+    assert decoded.rc.tolist() == [v for *_, rc in events for v in rc]
+    assert store.serialize_cdr(decoded, "wftool_msgs/msg/StreamEvents") == message
+
+
+def test_a_damaged_event_batch_is_a_clear_error():
+    message = ros2.encode_events([("bytes", 1.0, b"abc", ()), ("connected", 2.0, b"", ())])
+    with pytest.raises(ValueError, match="cut short"):
+        ros2.decode_events(message[:-8])
+    with pytest.raises(ValueError, match="do not add up"):
+        sizes = b"\x02\x00\x00\x00" + bytes(4)  # the read's 3 bytes said to be 2
+        ros2.decode_events(message.replace(b"\x03\x00\x00\x00" + bytes(4), sizes))
+    with pytest.raises(ValueError, match="not little-endian CDR"):
+        ros2.decode_events(b"\x00\x00" + message[2:])
 
 
 @settings(max_examples=200, deadline=None)

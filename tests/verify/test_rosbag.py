@@ -31,7 +31,8 @@ from wftool.fsp import SensorFrame, StatePacket
 from wftool.fsp.encoder import encode_state
 from wftool.verify.monitor import StreamMonitor
 from wftool.verify.recording import Event, Recorder, read_recording, replay_recording
-from wftool.verify.ros2 import HealthSampler, StreamHealth, decode_event
+from wftool.verify.ros2 import HealthSampler, StreamHealth, decode_events
+from wftool.verify.rosbag import EVENT_BATCH_S
 
 PERIOD_US = 953
 PACKETS_PER_READ = 3
@@ -265,21 +266,44 @@ def test_events_read_through_the_indexes_are_every_event_in_written_order(
     with open(path, "rb") as handle:
         reader = make_reader(handle)
         assert len(reader.get_summary().chunk_indexes) > 1
-        walked = [
-            (channel.message_encoding, message.data)
-            for _, channel, message in reader.iter_messages(
-                topics=["/fsp/events"], log_time_order=False
-            )
-        ]
+        walked = []
+        for _, channel, message in reader.iter_messages(
+            topics=["/fsp/events"], log_time_order=False
+        ):
+            if channel.message_encoding == "cdr":  # a batch
+                walked += decode_events(message.data).events()
+            else:
+                raw = json.loads(message.data)
+                walked.append((raw["kind"], raw["t"]))
     _, events = read_recording(path)
     indexed = list(events)
     assert len(indexed) == len(walked) == len(reads) + 3  # connect, command, disconnect
-    for event, (encoding, data) in zip(indexed, walked):
-        if encoding == "cdr":
-            assert (event.kind, event.t, event.data, event.rc) == decode_event(data)
-        else:
-            assert (event.kind, event.t) == (json.loads(data)["kind"], json.loads(data)["t"])
+    for event, in_file in zip(indexed, walked):
+        assert (event.kind, event.t, event.data, event.rc)[: len(in_file)] == in_file
     assert [e.data for e in indexed if e.kind == "bytes"] == reads
+
+
+def test_events_read_by_rosbags_are_the_reads_in_order(recorded, read_back):
+    """Every event, as rosbags decodes the batches with the file's own definition."""
+    _, reads, *_ = recorded
+    _, topics, _ = read_back
+    kinds, data, rc = [], [], []
+    for _, batch in topics["/fsp/events"]:
+        assert len(batch.t) == len(batch.kind) == len(batch.size) > 0
+        assert batch.t[-1] - batch.t[0] < EVENT_BATCH_S
+        blob, values = bytes(batch.data), batch.rc.tolist()
+        for kind, size in zip(batch.kind.tolist(), batch.size.tolist()):
+            kinds.append(kind)
+            if kind == batch.BYTES:
+                data.append(blob[:size])
+                blob = blob[size:]
+            elif kind == batch.COMMAND:
+                rc.append(tuple(values[:size]))
+                values = values[size:]
+        assert blob == b"" and values == []
+    assert kinds[0] == 0 and kinds[-2:] == [3, 1]  # CONNECTED; COMMAND, DISCONNECTED
+    assert data == reads
+    assert rc == [(1100, 1500, 1500, 1000, 1000, 1000)]
 
 
 def test_json_format_still_replays(tmp_path: Path):

@@ -53,6 +53,9 @@ from wftool.errors import RecordingError, UsageError
 
 CHUNK_SIZE = 1024 * 1024
 """Uncompressed bytes per chunk (the `mcap` default): what a full disk can cost."""
+APART_SPAN_NS = 1_000_000_000
+"""Apart messages (`McapFile.add_message`) are written at least this often (log time), so
+that a file cut short loses about a second of them, however few the others are."""
 
 
 class _TrackedFile:
@@ -94,12 +97,23 @@ class McapFile:
         except OSError as exc:
             raise UsageError(f"cannot write the recording: {exc}") from None
         self._file = _TrackedFile(fd)
-        self._writer = Writer(self._file, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
+        # Chunks are cut here (`_write_chunks`), never by the writer on its own.
+        self._writer = Writer(self._file, chunk_size=2**62, compression=CompressionType.ZSTD)
         self._safe_end = 0
         """File size at the end of the last complete write: where a failed file is cut."""
         self.failure: OSError | None = None
         self._pending: Counter[int] = Counter()
         self._pending_times: tuple[int, int] | None = None
+        self._held: list[tuple[int, int, bytes, int]] = []
+        """Messages queued for the next chunk: (channel, log time, data, publish time)."""
+        self._held_bytes = 0
+        self._apart: list[tuple[int, int, bytes, int]] = []
+        """... and for the next chunk of apart messages."""
+        self._apart_bytes = 0
+        self._latest = 0
+        """The latest log time of the messages written."""
+        self.before_chunk: Callable[[], None] | None = None
+        """Called before a chunk is written: the last chance to add apart messages to it."""
         self.message_counts: Counter[int] = Counter()
         """Messages per channel id that are in the file (their chunk is written)."""
         self.time_range: tuple[int, int] | None = None
@@ -124,35 +138,87 @@ class McapFile:
         self._guarded(self._writer.add_metadata, name, data)
 
     def add_message(
-        self, channel_id: int, log_time: int, data: bytes, publish_time: int | None = None
+        self,
+        channel_id: int,
+        log_time: int,
+        data: bytes,
+        publish_time: int | None = None,
+        *,
+        apart: bool = False,
     ) -> None:
-        """Queue a message; the chunk it completes is written now (the writer's `add_message`).
+        """Queue a message; once a chunk's worth is queued it is written as one.
 
-        After a failure (raised once, as `RecordingError`) messages are dropped.
+        `apart` messages go into chunks of their own, written before the chunk of the
+        others queued meanwhile: a reader after one channel (the raw bytes) then
+        decompresses its chunks alone, and the file never holds messages of the others
+        without the apart ones that came with them. An apart message's log time moves
+        to lie between the messages written before and after it, if it does not (its
+        publish time stays): a file without its index is read in log-time order, and
+        some readers (rosbags) require that order. After a failure (raised once, as
+        `RecordingError`) messages are dropped.
         """
         if self.failure is not None:
             return
-        position = self._file.position
+        message = (channel_id, log_time, data, log_time if publish_time is None else publish_time)
+        size = len(data) + _MESSAGE_HEAD.size
+        if apart:
+            self._apart.append(message)
+            self._apart_bytes += size
+            if self._apart_bytes > CHUNK_SIZE or log_time - self._apart[0][1] > APART_SPAN_NS:
+                self._write_chunks()
+            return
+        self._held.append(message)
+        self._held_bytes += size
+        if self._held_bytes > CHUNK_SIZE:
+            self._write_chunks()
+
+    def _write_chunks(self) -> None:
+        """What is queued, as chunks: the apart messages (`before_chunk` may add some), then
+        the others."""
+        if self.before_chunk is not None:
+            self.before_chunk()
+        apart, held = self._apart, self._held
+        self._apart, self._held, self._apart_bytes, self._held_bytes = [], [], 0, 0
+        if apart:
+            # Between the latest message written and the first of those held.
+            low = self._latest
+            high = min((m[1] for m in held), default=None)
+            for channel_id, log_time, data, publish_time in apart:
+                log_time = max(log_time, low) if high is None else min(max(log_time, low), high)
+                self._add(channel_id, log_time, data, publish_time)
+            self._flush()
+        if held:
+            for message in held:
+                self._add(*message)
+            self._flush()
+        self._commit()  # both or neither: a failure cuts the file back to before the two
+
+    def _flush(self) -> None:
         try:
-            self._writer.add_message(
-                channel_id, log_time, data, log_time if publish_time is None else publish_time
-            )
+            self._writer.flush()
+        except OSError as exc:
+            self._salvage(exc)
+
+    def _add(self, channel_id: int, log_time: int, data: bytes, publish_time: int) -> None:
+        try:
+            self._writer.add_message(channel_id, log_time, data, publish_time)
         except OSError as exc:
             self._salvage(exc)
         self._pending[channel_id] += 1
+        if log_time > self._latest:
+            self._latest = log_time
         times = self._pending_times
         if times is None:
             self._pending_times = (log_time, log_time)
         elif log_time < times[0] or log_time > times[1]:
             self._pending_times = (min(times[0], log_time), max(times[1], log_time))
-        if self._file.position != position:  # a chunk, this message included, is in the file
-            self._commit()
 
     def finish(self) -> None:
-        """Write the last chunk and the summary, and close the file (also after a failure)."""
+        """Write the last chunks and the summary, and close the file (also after a failure)."""
         if self._file.fd < 0:
             return
         if self.failure is None:
+            self._write_chunks()
             self._guarded(self._writer.finish)
             self._commit()
         self._abandon()
@@ -218,8 +284,8 @@ _MESSAGE_HEAD = struct.Struct("<BQHIQQ")
 
 def indexed_messages(
     handle: IO[bytes], summary: Summary | None, topic: str
-) -> tuple[str, Iterator[bytes]] | None:
-    """(message encoding, the data of `topic`'s messages in written order), read through
+) -> tuple[Channel, Iterator[bytes]] | None:
+    """(`topic`'s channel, the data of its messages in written order), read through
     the file's chunk and message indexes; None when the file has no such index (say, one
     cut short by a full disk) or no such topic: read it in full then.
 
@@ -236,7 +302,7 @@ def indexed_messages(
     chunk_indexes = sorted(summary.chunk_indexes, key=lambda index: index.chunk_start_offset)
     if not any(index.message_index_offsets for index in chunk_indexes):
         return None  # written without message indexes
-    return channel.message_encoding, _indexed(handle, chunk_indexes, channel.id)
+    return channel, _indexed(handle, chunk_indexes, channel.id)
 
 
 def _indexed(stream: IO[bytes], chunk_indexes: list[ChunkIndex], channel: int) -> Iterator[bytes]:

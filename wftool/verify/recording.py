@@ -22,24 +22,27 @@ import math
 import os
 import struct
 import time
+from array import array
 from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any, TextIO
 
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
-from mcap.records import Channel, Message, Metadata
+from mcap.records import Channel, Message, Metadata, Schema
 from mcap.writer import MCAP0_MAGIC
 
 from wftool import __version__
 from wftool.errors import UsageError
 from wftool.extras import require
 from wftool.fsp import ESTIMATORS, SensorFrame, StatePacket
+from wftool.verify import ros2
 from wftool.verify.mcapfile import Cut, LinearReader, indexed_messages
 from wftool.verify.mcapprocess import McapProcess
 from wftool.verify.monitor import StreamMonitor
-from wftool.verify.ros2 import StreamHealth, decode_event
+from wftool.verify.ros2 import StreamHealth, decode_event, decode_events
 from wftool.verify.rosbag import RosbagWriter, bag_file
 from wftool.verify.uplink import UplinkTracker
 
@@ -293,9 +296,7 @@ class RecordingReader:
         """The topics the file has channels for: from its summary, else from the channels
         written before its first message (wftool registers every channel at the start)."""
         if self._finished:
-            self._handle.seek(0)
-            summary = make_reader(self._handle).get_summary()
-            self._handle.seek(0)
+            summary = self._reader.get_summary()
             if summary is not None:
                 return {channel.topic for channel in summary.channels.values()}
         topics = set()
@@ -309,7 +310,8 @@ class RecordingReader:
     def _metadata(self) -> dict[str, str]:
         metadata: dict[str, str] = {}
         if self._finished:
-            for record in make_reader(self._handle).iter_metadata():
+            self._reader = make_reader(self._handle)  # it keeps the summary it reads
+            for record in self._reader.iter_metadata():
                 if record.name == self.metadata_name:
                     metadata = dict(record.metadata)
             return metadata
@@ -323,44 +325,119 @@ class RecordingReader:
     def events(self) -> Iterator[Event]:
         """The events, checked: a kind, a finite time, bytes inside a connection."""
         connected = False
-        with self._handle:
-            try:
-                for encoding, data in self._payloads():
-                    event = _event(encoding, data)
-                    if event.kind in ("connected", "disconnected"):
-                        connected = event.kind == "connected"
-                    elif event.kind == "bytes" and not connected:
-                        raise ValueError("bytes outside a connection")
+        with self._handle, self._damage():
+            for codec, data in self._payloads():
+                for event in _events(codec, data):
+                    connected = _connected_after(event, connected)
                     yield event
-            except (McapError, ValueError, KeyError, IndexError, EOFError, struct.error) as exc:
-                reason = str(exc) or type(exc).__name__
-                raise UsageError(f"recording {self.path} is damaged: {reason}") from None
+
+    def reads(self) -> Reads:
+        """What the run's decoder was fed, checked as `events` checks it: for
+        `recording_columns`, which needs no object per read. A batch of reads alone (the
+        most of a recording) is taken whole."""
+        connected = False
+        data: list[bytes] = []
+        sizes, times = array("I"), array("d")
+        connections: list[int] = []
+        with self._handle, self._damage():
+            for codec, payload in self._payloads():
+                if codec == _EVENTS_CDR:
+                    batch = decode_events(payload)
+                    if (
+                        connected
+                        and batch.kind.count(_BYTES) == len(batch.kind)
+                        and all(map(math.isfinite, batch.t))
+                    ):
+                        data.append(batch.data)
+                        sizes.extend(batch.size)
+                        times.extend(batch.t)
+                        continue
+                for event in _events(codec, payload):
+                    connected = _connected_after(event, connected)
+                    if event.kind == "connected" and sizes:
+                        connections.append(len(sizes))
+                    elif event.kind == "bytes":
+                        data.append(event.data)
+                        sizes.append(len(event.data))
+                        times.append(event.t)
+        return Reads(b"".join(data), sizes, times, connections)
+
+    @contextmanager
+    def _damage(self) -> Iterator[None]:
+        """Anything wrong inside the file, as a one-line `UsageError` naming it."""
+        try:
+            yield
+        except (McapError, ValueError, KeyError, IndexError, EOFError, struct.error) as exc:
+            reason = str(exc) or type(exc).__name__
+            raise UsageError(f"recording {self.path} is damaged: {reason}") from None
 
     def _payloads(self) -> Iterator[tuple[str, bytes]]:
-        """(encoding, data) of each event: through the indexes if the file has them."""
+        """(codec, data) of each event message: through the indexes if the file has them."""
         handle = self._handle
         if not self._finished:
             linear = LinearReader(handle)
+            schemas: dict[int, str] = {}
             channels: dict[int, Channel] = {}
             for record in linear.records():
-                if isinstance(record, Channel):
+                if isinstance(record, Schema):
+                    schemas[record.id] = record.name
+                elif isinstance(record, Channel):
                     channels[record.id] = record
                 elif isinstance(record, Message):
                     channel = channels.get(record.channel_id)
                     if channel is not None and channel.topic == self.topic:
-                        yield channel.message_encoding, record.data
+                        yield _codec(channel, schemas.get(channel.schema_id, "")), record.data
             self.cut = linear.cut
             return
-        handle.seek(0)
-        reader = make_reader(handle)
-        indexed = indexed_messages(handle, reader.get_summary(), self.topic)
+        reader = self._reader
+        summary = reader.get_summary()
+        indexed = indexed_messages(handle, summary, self.topic)
         if indexed is not None:
-            encoding, messages = indexed
+            channel, messages = indexed
+            schema = summary.schemas.get(channel.schema_id)
+            codec = _codec(channel, schema.name if schema is not None else "")
             for data in messages:
-                yield encoding, data
+                yield codec, data
             return
-        for _, channel, message in reader.iter_messages(topics=[self.topic], log_time_order=False):
-            yield channel.message_encoding, message.data
+        for schema, channel, message in reader.iter_messages(
+            topics=[self.topic], log_time_order=False
+        ):
+            yield _codec(channel, schema.name if schema is not None else ""), message.data
+
+
+@dataclass(frozen=True)
+class Reads:
+    """The reads of a recorded run, as its decoder was fed them."""
+
+    data: bytes
+    """All bytes read, in order."""
+    sizes: array
+    """Bytes per read."""
+    times: array
+    """OBC time (s) per read."""
+    connections: list[int]
+    """The reads that began a new connection after the first (`decode_columns`)."""
+
+
+_EVENTS_CDR = "cdr: " + ros2.STREAM_EVENTS.name
+_EVENT_CDR = "cdr: " + ros2.STREAM_EVENT.name
+_BYTES = ros2.EVENT_KINDS.index("bytes")
+
+
+def _codec(channel: Channel, schema_name: str) -> str:
+    """How the event messages of `channel` are encoded: JSON, or one of the CDR types."""
+    if channel.message_encoding != "cdr":
+        return channel.message_encoding
+    return _EVENTS_CDR if schema_name == ros2.STREAM_EVENTS.name else _EVENT_CDR
+
+
+def _connected_after(event: Event, connected: bool) -> bool:
+    """Whether the run is connected after `event`; bytes outside a connection are damage."""
+    if event.kind in ("connected", "disconnected"):
+        return event.kind == "connected"
+    if event.kind == "bytes" and not connected:
+        raise ValueError("bytes outside a connection")
+    return connected
 
 
 def _ends_whole(handle: IO[bytes]) -> bool:
@@ -378,27 +455,34 @@ def _ends_whole(handle: IO[bytes]) -> bool:
     return whole
 
 
-def _event(encoding: str, data: bytes) -> Event:
-    """An event message as recorded (CDR or JSON), or ValueError saying what is wrong."""
-    if encoding == "cdr":
-        kind, t, payload, rc = decode_event(data)
-    else:
-        raw = json.loads(data)
-        if not isinstance(raw, dict):
-            raise ValueError(f"an event is a JSON {type(raw).__name__}, not an object")
-        kind, t, encoded, rc = raw.get("kind"), raw.get("t"), raw.get("data", ""), raw.get("rc", [])
-        if not isinstance(encoded, str):
-            raise ValueError(f"an event's data is {encoded!r}, not base64 text")
-        payload = base64.b64decode(encoded, validate=True)
-        if not isinstance(rc, list):
-            raise ValueError(f"an event's rc is {rc!r}, not a list")
+def _events(codec: str, data: bytes) -> list[Event]:
+    """The events of one message as recorded (a CDR batch or single event, or JSON), or
+    ValueError saying what is wrong."""
+    if codec == _EVENTS_CDR:
+        return [_event(*event) for event in decode_events(data).events()]
+    if codec == _EVENT_CDR:
+        return [_event(*decode_event(data))]
+    raw = json.loads(data)
+    if not isinstance(raw, dict):
+        raise ValueError(f"an event is a JSON {type(raw).__name__}, not an object")
+    kind, t, encoded, rc = raw.get("kind"), raw.get("t"), raw.get("data", ""), raw.get("rc", [])
+    if not isinstance(encoded, str):
+        raise ValueError(f"an event's data is {encoded!r}, not base64 text")
+    payload = base64.b64decode(encoded, validate=True)
+    if not isinstance(rc, list):
+        raise ValueError(f"an event's rc is {rc!r}, not a list")
+    return [_event(kind, t, payload, rc)]
+
+
+def _event(kind: object, t: object, payload: bytes, rc: Sequence[object]) -> Event:
+    """An event, checked: a kind, a finite time, whole RC values."""
     if not isinstance(kind, str):
         raise ValueError(f"an event's kind is {kind!r}")
     if isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t):
         raise ValueError(f"an event's time is {t!r}, not a number of seconds")
     if any(isinstance(v, bool) or not isinstance(v, int) for v in rc):
         raise ValueError(f"an event's rc is {rc!r}, not whole numbers")
-    return Event(kind, float(t), payload, tuple(rc))
+    return Event(kind, float(t), payload, tuple(rc))  # type: ignore[arg-type]
 
 
 def recording_topics(path: Path) -> set[str]:
@@ -422,19 +506,10 @@ def recording_columns(path: Path | RecordingReader, clock: str | None = None) ->
     # Before reading anything: a missing extra is one line, not a late traceback.
     require("analysis", "numpy", what=columns.WHAT)
     recording = path if isinstance(path, RecordingReader) else RecordingReader(path)
-    events = recording.events()
     clock = clock or recording.metadata.get("clock") or ESTIMATORS[0]
-    chunks: list[bytes] = []
-    times: list[float] = []
-    connections: list[int] = []
-    for event in events:  # bytes come inside connections (`RecordingReader.events`)
-        if event.kind == "connected" and chunks:
-            connections.append(len(chunks))
-        elif event.kind == "bytes":
-            chunks.append(event.data)
-            times.append(event.t)
+    reads = recording.reads()
     return columns.decode_columns(
-        b"".join(chunks), list(map(len, chunks)), times, clock=clock, connections=connections
+        reads.data, reads.sizes, reads.times, clock=clock, connections=reads.connections
     )
 
 

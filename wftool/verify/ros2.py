@@ -16,8 +16,9 @@ What the ROS 2 recording (`wftool.verify.rosbag`) and the live Foxglove view
   converted to REP-103.
 - `sensor_msgs/msg/BatteryState`: voltage; the FC measures nothing else (NaN, per the
   message's convention).
-- `wftool_msgs/msg/{RcChannels,MotorRpm,Attitude,StreamHealth,StreamEvent}`, our own
-  types, with their definitions below.
+- `wftool_msgs/msg/{RcChannels,MotorRpm,Attitude,StreamHealth,StreamEvents}`, our own
+  types, with their definitions below (and `StreamEvent`, one event a message, which
+  earlier recordings hold).
 
 Each schema is the message's definition followed by those of the types it uses, in the
 `ros2msg` form MCAP and the Foxglove WebSocket protocol expect.
@@ -34,7 +35,9 @@ from __future__ import annotations
 
 import math
 import struct
+import sys
 import time
+from array import array
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -165,6 +168,20 @@ uint8 kind
 uint8[] data
 int16[] rc
 """
+STREAM_EVENTS_MSG = """\
+# What the verify loop saw, exactly and in order: `wftool replay` feeds these back.
+# Event i happened at t[i] (OBC monotonic time, s) and takes the next size[i] bytes of
+# data (BYTES: a read, as read) or the next size[i] values of rc (COMMAND: RC sent).
+uint8 CONNECTED = 0
+uint8 DISCONNECTED = 1
+uint8 BYTES = 2
+uint8 COMMAND = 3
+float64[] t
+uint8[] kind
+uint32[] size
+uint8[] data
+int16[] rc
+"""
 
 
 @dataclass(frozen=True)
@@ -200,6 +217,9 @@ MOTOR_RPM = _message_type("wftool_msgs/msg/MotorRpm", MOTOR_RPM_MSG, *_HEADER_US
 ATTITUDE = _message_type("wftool_msgs/msg/Attitude", ATTITUDE_MSG, *_HEADER_USES)
 STREAM_HEALTH = _message_type("wftool_msgs/msg/StreamHealth", STREAM_HEALTH_MSG, *_HEADER_USES)
 STREAM_EVENT = _message_type("wftool_msgs/msg/StreamEvent", STREAM_EVENT_MSG)
+"""One event per message: the MSP baseline's recordings, and FSP ones before `STREAM_EVENTS`."""
+STREAM_EVENTS = _message_type("wftool_msgs/msg/StreamEvents", STREAM_EVENTS_MSG)
+"""Events in batches (`rosbag.EVENT_BATCH_S` of them a message): what recordings hold now."""
 MSP_RC = _message_type("wftool_msgs/msg/MspRc", MSP_RC_MSG, *_HEADER_USES)
 
 EVENT_KINDS = ("connected", "disconnected", "bytes", "command")
@@ -433,6 +453,122 @@ def encode_event(kind: str, t: float, data: bytes = b"", rc: Sequence[int] = ())
     head = _EVENT_HEAD.pack(CDR_LE, t, EVENT_KINDS.index(kind), len(data))
     padding = b"\0" * (-len(data) % 4)  # the rc sequence's length is 4-aligned
     return b"".join((head, data, padding, _COUNT.pack(len(rc)), struct.pack(f"<{len(rc)}h", *rc)))
+
+
+@dataclass(frozen=True)
+class EventArrays:
+    """A `StreamEvents` message as flat arrays, without an object per event."""
+
+    t: array
+    """float64 per event."""
+    kind: bytes
+    """Per event, its index in EVENT_KINDS."""
+    size: array
+    """uint32 per event: its bytes in `data` (BYTES) or its values in `rc` (COMMAND)."""
+    data: bytes
+    """The BYTES events' data, one after the other."""
+    rc: array
+    """int16: the COMMAND events' RC values, one after the other."""
+
+    def events(self) -> list[tuple[str, float, bytes, tuple[int, ...]]]:
+        """(kind, t, data, rc) per event, as `encode_events` took them."""
+        events = []
+        data_at = rc_at = 0
+        for t, kind, size in zip(self.t, self.kind, self.size):
+            name = EVENT_KINDS[kind]
+            if name == "bytes":
+                events.append((name, t, self.data[data_at : data_at + size], ()))
+                data_at += size
+            elif name == "command":
+                events.append((name, t, b"", tuple(self.rc[rc_at : rc_at + size])))
+                rc_at += size
+            else:
+                events.append((name, t, b"", ()))
+        return events
+
+
+_NATIVE_LE = sys.byteorder == "little"
+_BYTES = EVENT_KINDS.index("bytes")
+_COMMAND = EVENT_KINDS.index("command")
+
+
+def _le(values: array) -> bytes:
+    if not _NATIVE_LE:
+        values = array(values.typecode, values)
+        values.byteswap()
+    return values.tobytes()
+
+
+def _sequence(parts: list[bytes], at: int, values: bytes, count: int, align: int) -> int:
+    """Append a CDR sequence (its count, padding, `values`) at offset `at`; the new offset."""
+    padding = -at % 4
+    at += padding + 4
+    inner = -at % align if count else 0  # no elements, nothing to align
+    parts += (b"\0" * padding, _COUNT.pack(count), b"\0" * inner, values)
+    return at + inner + len(values)
+
+
+def encode_events(events: Sequence[tuple[str, float, bytes, Sequence[int]]]) -> bytes:
+    """A `StreamEvents` message of (kind, t, data, rc) events, in order."""
+    times, kinds, sizes = array("d"), bytearray(), array("I")
+    data: list[bytes] = []
+    rc = array("h")
+    for kind, t, payload, values in events:
+        times.append(t)
+        kinds.append(EVENT_KINDS.index(kind))
+        if kind == "command":
+            sizes.append(len(values))
+            rc.extend(values)
+        else:
+            sizes.append(len(payload))
+            data.append(payload)
+    parts = [CDR_LE]
+    at = _sequence(parts, 0, _le(times), len(times), 8)
+    at = _sequence(parts, at, bytes(kinds), len(kinds), 1)
+    at = _sequence(parts, at, _le(sizes), len(sizes), 4)
+    blob = b"".join(data)
+    at = _sequence(parts, at, blob, len(blob), 1)
+    _sequence(parts, at, _le(rc), len(rc), 2)
+    return b"".join(parts)
+
+
+def decode_events(message: bytes) -> EventArrays:
+    """The arrays of a `StreamEvents` message (ValueError if it is not one)."""
+    if message[:4] != CDR_LE:
+        raise ValueError(f"not little-endian CDR: {message[:4].hex()}")
+    body = memoryview(message)[4:]
+    at = 0
+    fields = []
+    for typecode, size in (("d", 8), ("B", 1), ("I", 4), ("B", 1), ("h", 2)):
+        at += -at % 4
+        if at + 4 > len(body):
+            raise ValueError("a StreamEvents message cut short")
+        (count,) = _COUNT.unpack_from(body, at)
+        at += 4
+        if count:
+            at += -at % size
+        end = at + count * size
+        if end > len(body):
+            raise ValueError("a StreamEvents message cut short")
+        values = array(typecode)
+        values.frombytes(body[at:end])
+        if not _NATIVE_LE:
+            values.byteswap()
+        fields.append(values)
+        at = end
+    times, kinds, sizes, data, rc = fields
+    if not len(times) == len(kinds) == len(sizes):
+        raise ValueError("a StreamEvents message whose t, kind and size differ in length")
+    if max(kinds, default=0) >= len(EVENT_KINDS):
+        raise ValueError(f"an event kind beyond {len(EVENT_KINDS) - 1}")
+    if kinds.count(_BYTES) == len(kinds):  # reads alone, as most batches are
+        data_size, rc_size = sum(sizes), 0
+    else:
+        data_size = sum(size for kind, size in zip(kinds, sizes) if kind == _BYTES)
+        rc_size = sum(size for kind, size in zip(kinds, sizes) if kind == _COMMAND)
+    if (data_size, rc_size) != (len(data), len(rc)):
+        raise ValueError("a StreamEvents message whose sizes do not add up to its data")
+    return EventArrays(times, kinds.tobytes(), sizes, data.tobytes(), rc)
 
 
 def decode_event(message: bytes) -> tuple[str, float, bytes, tuple[int, ...]]:

@@ -14,11 +14,17 @@ any MCAP file. Topics:
 | `/fsp/rc` | `wftool_msgs/msg/RcChannels` | on change, at least 10 Hz (1) |
 | `/fsp/battery` | `sensor_msgs/msg/BatteryState` | 10 Hz |
 | `/fsp/health` | `wftool_msgs/msg/StreamHealth` | each snapshot the caller passes (verify: 10 Hz) |
-| `/fsp/events` | `wftool_msgs/msg/StreamEvent` | every read, connect, disconnect and command |
+| `/fsp/events` | `wftool_msgs/msg/StreamEvents` | every read, connect, disconnect, command (2) |
 
 (1) A change is written with the frame before it, so a plot steps rather than ramps.
+(2) In batches: one message per `EVENT_BATCH_S` of events. Earlier recordings held one
+`StreamEvent` per event; they are read as well.
 
 `/fsp/events` holds the raw bytes exactly as read, so `wftool replay` reproduces the run.
+Its messages go into chunks of their own, each written before the chunk of the frames
+read meanwhile (`McapFile.add_message(apart=True)`): reading a recording back decompresses
+the raw bytes alone, and a file cut short holds the bytes of every frame it holds.
+Batching them saves a message (31 bytes of record, 16 of index) per read.
 `BagFile` is the container alone (directory, MCAP file, metadata.yaml) for any topics: the
 MSP baseline's recording (`wftool.verify.msp_recording`) is one too.
 Message definitions: `wftool.verify.ros2`. A message's log time is when the OBC read it
@@ -60,9 +66,11 @@ TOPICS: dict[str, MessageType] = {
     RC_TOPIC: ros2.RC_CHANNELS,
     BATTERY_TOPIC: ros2.BATTERY_STATE,
     HEALTH_TOPIC: ros2.STREAM_HEALTH,
-    EVENT_TOPIC: ros2.STREAM_EVENT,
+    EVENT_TOPIC: ros2.STREAM_EVENTS,
 }
 METADATA_VERSION = 8
+EVENT_BATCH_S = 0.5
+"""Events go into one `StreamEvents` message until it spans this long (OBC time)."""
 
 
 def bag_file(path: Path) -> Path:
@@ -211,6 +219,7 @@ class RosbagWriter(BagFile):
             "wall_offset_ns": str(self._encoder.wall_offset_ns),  # Unix minus OBC monotonic time
         }
         super().__init__(path, TOPICS, metadata_name, custom)
+        self._out.before_chunk = self._write_events  # a chunk's frames bring their bytes
         ids = self.channels
         self._imu, self._rpm, self._rc = ids[IMU_TOPIC], ids[RPM_TOPIC], ids[RC_TOPIC]
         self._battery, self._health = ids[BATTERY_TOPIC], ids[HEALTH_TOPIC]
@@ -221,6 +230,7 @@ class RosbagWriter(BagFile):
         self._rc_previous: tuple = ()  # (frame, stamp) of the latest frame seen
         self._last_health: StreamHealth | None = None
         self._log_ns = 0
+        self._event_batch: list[tuple[str, float, bytes, Sequence[int]]] = []
 
     @property
     def wall_offset_ns(self) -> int:
@@ -228,9 +238,18 @@ class RosbagWriter(BagFile):
         return self._encoder.wall_offset_ns
 
     def event(self, kind: str, t: float, data: bytes = b"", rc: Sequence[int] = ()) -> None:
-        """One `/fsp/events` message: a connect, disconnect, read or command at `t`."""
-        self._log_ns = log_ns = self._encoder.stamp_ns(t)
-        self._out.add_message(self._events, log_ns, ros2.encode_event(kind, t, data, rc))
+        """A connect, disconnect, read or command at `t`, for `/fsp/events`."""
+        self._log_ns = self._encoder.stamp_ns(t)
+        batch = self._event_batch
+        if batch and not 0 <= t - batch[0][1] < EVENT_BATCH_S:
+            self._write_events()
+        self._event_batch.append((kind, t, data, rc))
+
+    def _write_events(self) -> None:
+        batch, self._event_batch = self._event_batch, []
+        if batch:
+            log_ns = self._encoder.stamp_ns(batch[0][1])
+            self._out.add_message(self._events, log_ns, ros2.encode_events(batch), apart=True)
 
     def packets(self, packets: Sequence[StatePacket], health: StreamHealth | None = None) -> None:
         """The frames of `packets`, and `health` if it is a new snapshot."""
@@ -264,6 +283,17 @@ class RosbagWriter(BagFile):
                 add(self._rc, log_ns, encode(previous, previous_stamp))
         add(self._rc, log_ns, encode(frame, stamp))
         self._rc_sent, self._rc_sent_ns = rc, stamp
+
+    def close(self) -> None:
+        """Hand the last events over, then finish as any `BagFile` (also after a failure)."""
+        out = self._out
+        if out is None:
+            return
+        try:
+            self._write_events()
+        finally:
+            out.before_chunk = None
+            super().close()
 
 
 def _quoted(value: str) -> str:

@@ -1,0 +1,55 @@
+"""Makes the recordings here as an earlier wftool wrote them; tests read them with today's.
+
+Run from an export of the commit that writes the layout to keep (these: 3cce0e6, one ROS 2
+`StreamEvent` message per event, in the chunks of the frames), with the export first on
+PYTHONPATH: `python tests/verify/data/make_recordings.py tests/verify/data`.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from tests.verify.test_rosbag import flight
+from wftool.verify.monitor import StreamMonitor
+from wftool.verify.recording import Event, Recorder
+from wftool.verify.ros2 import HealthSampler
+
+RECORDINGS = {"ros2-streamevent.mcap": "ros2", "json.mcap": "json"}
+PORT = "socket://sim:5762"
+
+
+def events() -> list[Event]:
+    """A run with a command, a reconnect that cuts a read short, and a last disconnect."""
+    reads = flight(90, seed=7)
+    t, out = 100.0, [Event("connected", 100.0)]
+    for index, data in enumerate(reads):
+        t += 0.0057
+        if index == 10:
+            out.append(Event("command", t, rc=(1100, 1500, 1500, 1000, 1000, 1000)))
+        if index == 20:
+            out += [Event("disconnected", t), Event("connected", t + 0.5)]
+            t += 0.5
+        out.append(Event("bytes", t, data[: len(data) - 5] if index == 19 else data))
+    return [*out, Event("disconnected", t)]
+
+
+def main(directory: Path) -> None:
+    for name, record_format in RECORDINGS.items():
+        monitor = StreamMonitor(PORT)
+        sampler = HealthSampler(monitor)
+        metadata = {"port": PORT, "clock": "envelope"}
+        with Recorder(directory / name, None, metadata, record_format=record_format) as recorder:
+            for event in events():
+                recorder.event(event)
+                if event.kind == "connected":
+                    monitor.connected(event.t)
+                elif event.kind == "disconnected":
+                    monitor.disconnected(event.t)
+                elif event.kind == "bytes":
+                    packets = monitor.feed(event.data, event.t)
+                    recorder.packets(packets, sampler.sample(packets, event.t))
+
+
+if __name__ == "__main__":
+    main(Path(sys.argv[1]))
