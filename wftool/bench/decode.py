@@ -15,7 +15,9 @@ from __future__ import annotations
 
 import itertools
 import math
+import random
 import statistics
+import struct
 import tempfile
 import time
 import tracemalloc
@@ -73,13 +75,69 @@ def _frame(t_us: int) -> SensorFrame:
     )
 
 
-def write_capture(path: Path, packets: int, tunnel: bool) -> None:
+GYRO_SCALE = 0.0609756
+"""°/s per count at ±2000 °/s."""
+ACC_1G = 2048
+"""Counts per g at ±16 g."""
+GYRO_NOISE = 2.6
+"""Counts RMS: the BMI270's 0.007 °/s/√Hz over the ~500 Hz the stream carries."""
+ACC_NOISE = 7.4
+"""Counts RMS: the BMI270's 160 µg/√Hz over ~500 Hz."""
+RPM_NOISE = 40.0
+"""RPM RMS: one step of bidirectional DShot's period (1 µs of ~480 µs at 18,000 RPM)."""
+RC_STEPS_PER_S = 50.0
+"""How often a stick moves by a count or two (an RC link's update rate, roughly)."""
+
+
+class RealisticFlight:
+    """Frames as a hovering, gently manoeuvring quadrotor sends them: the virtual FC's
+    motion (`sitl.session.Motion`: roll, pitch and yaw) with the BMI270's datasheet noise on
+    gyro and accelerometer, four motors near 18,000 RPM following the manoeuvre with
+    DShot's RPM jitter, sticks that move now and then, and a slowly sagging battery.
+
+    The other stream (`_frame`, "sweeping") moves every value, the RC channels included,
+    by hundreds of counts every second, smoothly and without noise.
+    """
+
+    def __init__(self, seed: int = 1) -> None:
+        from wftool.sitl.session import Motion
+
+        self._state = Motion().state
+        self._random = random.Random(seed)
+        self._rc = [1500, 1500, 1500, 1300, 1000, 2000]
+
+    def frame(self, t_us: int) -> SensorFrame:
+        gauss, t = self._random.gauss, t_us * 1e-6
+        values = struct.unpack("<18d", self._state(t, t))
+        rates, accel, quaternion = values[1:4], values[4:7], values[7:11]
+        gyro = [round(math.degrees(r) / GYRO_SCALE + gauss(0, GYRO_NOISE)) for r in rates]
+        acc = [round(-a / 9.80665 * ACC_1G + gauss(0, ACC_NOISE)) for a in accel]
+        attitude = [max(-32768, min(32767, round(q * 32767))) for q in quaternion]
+        if self._random.random() < RC_STEPS_PER_S * FRAME_PERIOD_US * 1e-6:
+            stick = self._random.randrange(4)
+            step = self._random.choice((-2, -1, 1, 2))
+            self._rc[stick] = max(1000, min(2000, self._rc[stick] + step))
+        swing = 3000 * math.sin(2 * math.pi * 0.4 * t)  # the roll manoeuvre, felt by motors
+        rpm = [round(18000 + swing * (-1) ** m + gauss(0, RPM_NOISE)) for m in range(4)]
+        vbat = round(1620 - 0.05 * t + gauss(0, 0.7))
+        return SensorFrame(
+            t_us % 2**32, tuple(acc), ACC_1G, GYRO_SCALE, tuple(gyro), tuple(attitude),
+            tuple(self._rc), tuple(rpm), vbat,
+        )  # type: ignore[arg-type]  # fmt: skip
+
+
+STREAMS = ("realistic", "sweeping")
+"""The bench streams: `RealisticFlight`, and `_frame` (every value sweeping, no noise)."""
+
+
+def write_capture(path: Path, packets: int, tunnel: bool, stream: str = "sweeping") -> None:
     """A capture file of `packets` consecutive state packets of a steady stream."""
     mavlink = bytes(64) if tunnel else None
+    frame = RealisticFlight().frame if stream == "realistic" else _frame
     t_us = 4_000_000_000  # wraps after ~5 min, so a 10 min replay crosses it
     with path.open("wb") as capture:
         for seq in range(packets):
-            frames = (_frame(t_us), _frame(t_us + FRAME_PERIOD_US))
+            frames = (frame(t_us), frame(t_us + FRAME_PERIOD_US))
             tx = (t_us + FRAME_PERIOD_US + 120) % 2**32
             capture.write(encode_state(StatePacket(tx, frames, seq % 2**24, True, 0, mavlink)))
             t_us += 2 * FRAME_PERIOD_US

@@ -1,11 +1,12 @@
 """What recording costs: bytes and CPU per frame of the JSON and ROS 2 MCAP formats.
 
-The synthetic flight of `bench decode` (E1 on, moving values, ~1049 frames/s) is fed
-through the real verify path, as the live loop feeds it: one read per `chunk_bytes` with
-real-time arrival stamps, each read recorded as an event, its packets decoded by a
-`StreamMonitor` and recorded with a health snapshot every 100 ms. The same replay without
-a recorder is the reference: a format's CPU is its run's process time minus the
-reference's, so it counts the recorder alone (encoding, MCAP chunks, zstd, file writes).
+A synthetic flight of `bench decode` (E1 on, ~1049 frames/s; `decode.STREAMS`: realistic
+motion and sensor noise, or every value sweeping) is fed through the real verify path, as
+the live loop feeds it: one read per `chunk_bytes` with real-time arrival stamps, each read
+recorded as an event, its packets decoded by a `StreamMonitor` and recorded with a health
+snapshot every 100 ms. The same replay without a recorder is the reference: a format's CPU
+is its run's process time minus the reference's, so it counts the recorder alone
+(encoding, MCAP chunks, zstd, file writes).
 Sizes are the files on disk after chunk compression, metadata.yaml included.
 
 Reading back is timed too, in frames/s: `replay` (the recorded events through the
@@ -35,7 +36,7 @@ from pathlib import Path
 
 from mcap.reader import make_reader
 
-from wftool.bench.decode import REALTIME_PACKETS_PER_S, write_capture
+from wftool.bench.decode import REALTIME_PACKETS_PER_S, STREAMS, write_capture
 from wftool.verify.mcapfile import McapFile
 from wftool.verify.mcapprocess import McapProcess
 from wftool.verify.monitor import StreamMonitor
@@ -97,6 +98,7 @@ class StallFigures:
 
 @dataclass(frozen=True)
 class RecordBenchResult:
+    stream: str
     seconds: float
     chunk_bytes: int
     frames: int
@@ -225,13 +227,16 @@ def _read_back(path: Path, frames: int, numpy: bool) -> tuple[float, float | Non
     return frames / (replayed - start), frames / (time.perf_counter() - replayed)
 
 
-def run_record_bench(seconds: float, chunk_bytes: int, repeat: int) -> RecordBenchResult:
-    """Each format `repeat` times, interleaved with the reference; the least CPU counts,
-    and the fastest read-back."""
+def run_record_bench(
+    seconds: float, chunk_bytes: int, repeat: int, stream: str = STREAMS[0]
+) -> RecordBenchResult:
+    """Each format `repeat` times on `stream`, interleaved with the reference; the least
+    CPU counts, and the fastest read-back."""
     with tempfile.TemporaryDirectory(prefix="wftool-bench-") as scratch_name:
         scratch = Path(scratch_name)
         capture_path = scratch / "capture.fsp"
-        write_capture(capture_path, round(seconds * REALTIME_PACKETS_PER_S), tunnel=False)
+        packets = round(seconds * REALTIME_PACKETS_PER_S)
+        write_capture(capture_path, packets, tunnel=False, stream=stream)
         capture = capture_path.read_bytes()
         reference = float("inf")
         cpu = dict.fromkeys(RECORD_FORMATS, float("inf"))
@@ -262,6 +267,7 @@ def run_record_bench(seconds: float, chunk_bytes: int, repeat: int) -> RecordBen
                 if name not in stalls or figures.worst_s < stalls[name].worst_s:
                     stalls[name] = figures
     return RecordBenchResult(
+        stream=stream,
         seconds=seconds,
         chunk_bytes=chunk_bytes,
         frames=frames,
