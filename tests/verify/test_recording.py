@@ -10,7 +10,7 @@ import pytest
 from mcap.reader import make_reader
 
 from tests.fsp.test_twoway import RC
-from tests.verify.data.make_recordings import PORT, RECORDINGS, events
+from tests.verify.data.make_recordings import RECORDINGS, events, run
 from tests.verify.test_monitor import feed_steady, feed_two_way
 from wftool.errors import UsageError
 from wftool.verify.monitor import StreamMonitor
@@ -128,15 +128,7 @@ def test_recordings_in_an_earlier_layout_still_read(name: str):
     path = DATA / name
     expected = events()
     assert list(RecordingReader(path).events()) == expected
-    live = StreamMonitor(PORT)
-    for event in expected:
-        if event.kind == "connected":
-            live.connected(event.t)
-        elif event.kind == "disconnected":
-            live.disconnected(event.t)
-        elif event.kind == "bytes":
-            live.feed(event.data, event.t)
-    assert replay_recording(path).summary() == live.summary()
+    assert replay_recording(path).summary() == run().summary()
     pytest.importorskip("numpy", reason="columns need wftool[analysis]")
     from tests.fsp.test_columns import assert_agree, reference
 

@@ -28,6 +28,7 @@ import math
 from array import array
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, fields
+from functools import partial
 from typing import TYPE_CHECKING, Any
 
 from cobs import cobs
@@ -631,19 +632,16 @@ def _obc_times(
 ) -> np.ndarray:
     """Each frame's OBC time from `clock`, told packet by packet what `StateDecoder` tells it.
 
-    An estimator that takes runs of packets (`BatchObserver`, the default one does) gets
-    each run of booked packets of one epoch at once; any other is told packet by packet.
+    Each run of booked packets of one epoch goes to the estimator at once if it takes runs
+    (`BatchObserver`, as the default one does), else packet by packet (`_track_each`).
     """
-    if not isinstance(clock, BatchObserver):
-        return _obc_times_one_by_one(
-            np, clock, reset, outlier, packet_time_us, arrival_time, time_us
-        )
+    track = clock.track if isinstance(clock, BatchObserver) else partial(_track_each, np, clock)
     frame_us = time_us.reshape(-1, 2)
     out = np.empty(frame_us.shape)
     start = 0
     for index in [*np.flatnonzero(reset | outlier).tolist(), len(reset)]:
         if start < index:
-            out[start:index] = clock.track(
+            out[start:index] = track(
                 packet_time_us[start:index], arrival_time[start:index], frame_us[start:index]
             )
         if index == len(reset):
@@ -652,7 +650,7 @@ def _obc_times(
             clock.reset()
             start = index
         else:  # an outlier: timed, not observed
-            out[index] = [_nan_for_none(clock.to_obc(int(t))) for t in frame_us[index]]
+            out[index] = [_nan_for_none(clock.to_obc(t)) for t in frame_us[index].tolist()]
             start = index + 1
     return out.reshape(-1)
 
@@ -661,37 +659,16 @@ def _nan_for_none(value: float | None) -> float:
     return math.nan if value is None else value
 
 
-def _obc_times_one_by_one(
-    np: Any,
-    clock: ClockEstimator,
-    reset: np.ndarray,
-    outlier: np.ndarray,
-    packet_time_us: np.ndarray,
-    arrival_time: np.ndarray,
-    time_us: np.ndarray,
+def _track_each(
+    np: Any, clock: ClockEstimator, fc_time_us: np.ndarray, obc_time: np.ndarray, at_us: np.ndarray
 ) -> np.ndarray:
-    """`_obc_times` for any estimator: a Python loop over packets, a block at a time so
-    that the Python numbers it needs stay few; its answers go straight into a float array."""
-    observe, to_obc, forget = clock.observe, clock.to_obc, clock.reset
+    """`BatchObserver.track` for any estimator: observe and map packet by packet."""
+    observe, to_obc = clock.observe, clock.to_obc
     out = array("d")
     append = out.append
-    nan = math.nan
-    for first in range(0, len(reset), BLOCK_ROWS):
-        block = slice(first, first + BLOCK_ROWS)
-        frame_times = iter(time_us[2 * first : 2 * (first + BLOCK_ROWS)].tolist())
-        for was_reset, left_out, packet_us, arrived, first_us, second_us in zip(
-            reset[block].tolist(),
-            outlier[block].tolist(),
-            packet_time_us[block].tolist(),
-            arrival_time[block].tolist(),
-            frame_times,
-            frame_times,
-        ):
-            if was_reset:
-                forget()
-            if not left_out:
-                observe(packet_us, arrived)
-            first_obc, second_obc = to_obc(first_us), to_obc(second_us)
-            append(nan if first_obc is None else first_obc)
-            append(nan if second_obc is None else second_obc)
-    return np.frombuffer(out, np.float64) if out else np.zeros(0)
+    for fc_us, arrived, row in zip(fc_time_us.tolist(), obc_time.tolist(), at_us.tolist()):
+        observe(fc_us, arrived)
+        for t in row:
+            mapped = to_obc(t)
+            append(math.nan if mapped is None else mapped)
+    return np.frombuffer(out, np.float64).reshape(at_us.shape)

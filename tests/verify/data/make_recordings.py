@@ -34,21 +34,29 @@ def events() -> list[Event]:
     return [*out, Event("disconnected", t)]
 
 
+def run(recorder: Recorder | None = None) -> StreamMonitor:
+    """The run of `events()` as its live loop saw it, recorded by `recorder` if given."""
+    monitor = StreamMonitor(PORT)
+    sampler = HealthSampler(monitor)
+    for event in events():
+        if recorder is not None:
+            recorder.event(event)
+        if event.kind == "connected":
+            monitor.connected(event.t)
+        elif event.kind == "disconnected":
+            monitor.disconnected(event.t)
+        elif event.kind == "bytes":
+            packets = monitor.feed(event.data, event.t)
+            if recorder is not None:
+                recorder.packets(packets, sampler.sample(packets, event.t))
+    return monitor
+
+
 def main(directory: Path) -> None:
+    metadata = {"port": PORT, "clock": "envelope"}
     for name, record_format in RECORDINGS.items():
-        monitor = StreamMonitor(PORT)
-        sampler = HealthSampler(monitor)
-        metadata = {"port": PORT, "clock": "envelope"}
         with Recorder(directory / name, None, metadata, record_format=record_format) as recorder:
-            for event in events():
-                recorder.event(event)
-                if event.kind == "connected":
-                    monitor.connected(event.t)
-                elif event.kind == "disconnected":
-                    monitor.disconnected(event.t)
-                elif event.kind == "bytes":
-                    packets = monitor.feed(event.data, event.t)
-                    recorder.packets(packets, sampler.sample(packets, event.t))
+            run(recorder)
 
 
 if __name__ == "__main__":
