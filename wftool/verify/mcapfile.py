@@ -113,6 +113,9 @@ class McapFile:
         self._latest = 0
         """The latest log time of the messages written."""
         self.before_chunk: Callable[[], None] | None = None
+        self.defer_cuts = False
+        """True: chunks are cut only by `cut_if_due`, at points where the caller knows the
+        apart messages and the others agree (the writer process: at the end of a batch)."""
         """Called before a chunk is written: the last chance to add apart messages to it."""
         self.message_counts: Counter[int] = Counter()
         """Messages per channel id that are in the file (their chunk is written)."""
@@ -164,12 +167,21 @@ class McapFile:
         if apart:
             self._apart.append(message)
             self._apart_bytes += size
-            if self._apart_bytes > CHUNK_SIZE or log_time - self._apart[0][1] > APART_SPAN_NS:
-                self._write_chunks()
-            return
-        self._held.append(message)
-        self._held_bytes += size
-        if self._held_bytes > CHUNK_SIZE:
+        else:
+            self._held.append(message)
+            self._held_bytes += size
+        if not self.defer_cuts:
+            self.cut_if_due()
+
+    def cut_if_due(self) -> None:
+        """Write what is queued if a chunk's worth is (or the apart messages span
+        `APART_SPAN_NS`)."""
+        apart = self._apart
+        if (
+            self._held_bytes > CHUNK_SIZE
+            or self._apart_bytes > CHUNK_SIZE
+            or (apart and apart[-1][1] - apart[0][1] > APART_SPAN_NS)
+        ):
             self._write_chunks()
 
     def _write_chunks(self) -> None:

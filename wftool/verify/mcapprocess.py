@@ -48,6 +48,7 @@ import sys
 import threading
 import time
 from collections import Counter
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, BinaryIO
 
@@ -79,6 +80,7 @@ _BOOT = (
 )
 """The writer's start: with the caller's import path, so it runs the caller's wftool."""
 _MESSAGE_OP, _SCHEMA_OP, _CHANNEL_OP, _METADATA_OP, _FINISH_OP, _DISCARD_OP = range(6)
+_APART_OP, _BATCH_END_OP = 6, 7
 
 
 class McapProcess:
@@ -100,6 +102,14 @@ class McapProcess:
         self._raised = False
         self._batch = bytearray()
         self._batch_due = 0.0
+        self._apart = bytearray()
+        """The batch's apart messages: handed over ahead of it."""
+        self._flushing = False
+        self.before_chunk: Callable[[], None] | None = None
+        """Called before each batch goes to the writer: the last chance to add apart
+        messages to go with it. They go ahead of the batch, and the writer cuts chunks only
+        where a batch ends, so a chunk's messages come with their apart ones
+        (`McapFile.before_chunk`'s promise, kept per batch)."""
         self._replies: queue.SimpleQueue[dict[str, Any] | None] = queue.SimpleQueue()
         command = [sys.executable, "-c", _BOOT, json.dumps(sys.path)]
         try:
@@ -134,25 +144,36 @@ class McapProcess:
         self._control(_METADATA_OP, (name, dict(data)))
 
     def add_message(
-        self, channel_id: int, log_time: int, data: bytes, publish_time: int | None = None
+        self,
+        channel_id: int,
+        log_time: int,
+        data: bytes,
+        publish_time: int | None = None,
+        *,
+        apart: bool = False,
     ) -> None:
-        """Queue a message for the writer; the batch goes when it is due.
+        """Queue a message for the writer; the batch goes when it is due. `apart`: as
+        `McapFile.add_message`'s, handed over ahead of the batch.
 
         After a failure (raised once, as `RecordingError`) messages are dropped.
         """
         if self.failure is not None:
             self._raise_once()
             return
-        batch = self._batch
+        batch = self._apart if apart else self._batch
         now = time.monotonic()
-        if not batch:
+        if not self._batch and not self._apart:
             self._batch_due = now + FLUSH_PERIOD_S
         published = log_time if publish_time is None else publish_time
         batch += _MESSAGE.pack(
-            _MESSAGE_OP, _MESSAGE_FIELDS.size + len(data), channel_id, log_time, published
+            _APART_OP if apart else _MESSAGE_OP,
+            _MESSAGE_FIELDS.size + len(data),
+            channel_id,
+            log_time,
+            published,
         )
         batch += data
-        if len(batch) >= FLUSH_BYTES or now >= self._batch_due:
+        if not self._flushing and (len(batch) >= FLUSH_BYTES or now >= self._batch_due):
             self._flush()
 
     def finish(self) -> None:
@@ -166,6 +187,7 @@ class McapProcess:
     def discard(self) -> None:
         """Close and delete the file: the recording never started."""
         self._batch.clear()
+        self._apart.clear()
         if self._process.returncode is None and self.failure is None:
             self._control(_DISCARD_OP, ())
         self._end()
@@ -180,8 +202,18 @@ class McapProcess:
         self._flush()
 
     def _flush(self) -> None:
+        if self.before_chunk is not None and not self._flushing:
+            self._flushing = True
+            try:
+                self.before_chunk()
+            finally:
+                self._flushing = False
+        if self._apart:
+            self._batch[:0] = self._apart
+            self._apart.clear()
         if not self._batch or self._input.closed:
             return
+        self._batch += _RECORD.pack(_BATCH_END_OP, 0)
         batch, fd = self._batch, self._input.fileno()
         started = time.monotonic()
         written = 0
@@ -287,6 +319,7 @@ def serve(path: str, profile: str, library: str) -> int:
     except UsageError as exc:
         _say(error=str(exc))
         return 2
+    mcap.defer_cuts = True  # chunks end where batches do: with their apart messages
     _say(started=True)
     source = sys.stdin.buffer
     head_size, fields_size = _RECORD.size, _MESSAGE_FIELDS.size
@@ -299,9 +332,13 @@ def serve(path: str, profile: str, library: str) -> int:
             body = source.read(length)
             if len(body) < length:
                 break  # the caller died writing it
-            if op == _MESSAGE_OP:
+            if op in (_MESSAGE_OP, _APART_OP):
                 channel_id, log_time, publish_time = _MESSAGE_FIELDS.unpack_from(body)
-                mcap.add_message(channel_id, log_time, body[fields_size:], publish_time)
+                mcap.add_message(
+                    channel_id, log_time, body[fields_size:], publish_time, apart=op == _APART_OP
+                )
+            elif op == _BATCH_END_OP:
+                mcap.cut_if_due()
             elif op == _SCHEMA_OP:
                 _say(id=mcap.register_schema(*marshal.loads(body)))
             elif op == _CHANNEL_OP:
