@@ -30,8 +30,11 @@ def test_bench_decode_prints_every_path_and_their_agreement(
 def test_bench_record_prints_both_formats_their_read_back_and_both_writers_stalls(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
-    code, out, err = run_cli(capsys, "bench", "record", "--seconds", "2", "--repeat", "1")
+    code, out, err = run_cli(
+        capsys, "bench", "record", "--seconds", "2", "--repeat", "1", "--stream", "realistic"
+    )
     assert (code, err) == (0, "")
+    assert "recording the realistic stream" in out and "sweeping" not in out
     formats, stalls = out.split("reference (decode + monitor")
     rows = {line.split()[1]: line for line in formats.splitlines() if line.startswith("│ ")}
     assert set(rows) == {"ros2", "json"}
