@@ -61,6 +61,12 @@ FLUSH_PERIOD_S = 0.02
 death can lose."""
 FLUSH_BYTES = 64 * 1024
 """...or as soon as it holds this much."""
+CUT_PERIOD_S = 0.5
+"""With `before_chunk` set, it is called at the first batch after this long (or after
+`CUT_BYTES`), and the writer may cut a chunk only after such a batch: the apart messages
+come in batches this long, not one per batch (fewer, larger messages to read back)."""
+CUT_BYTES = 256 * 1024
+"""...or after this much was handed over: a chunk overshoots its size by at most this."""
 PIPE_BYTES = 1024 * 1024
 """The pipe's capacity where the system allows it (Linux: F_SETPIPE_SZ): a chunk's worth
 of lag before the caller waits."""
@@ -80,7 +86,7 @@ _BOOT = (
 )
 """The writer's start: with the caller's import path, so it runs the caller's wftool."""
 _MESSAGE_OP, _SCHEMA_OP, _CHANNEL_OP, _METADATA_OP, _FINISH_OP, _DISCARD_OP = range(6)
-_APART_OP, _BATCH_END_OP = 6, 7
+_APART_OP, _CUT_POINT_OP = 6, 7
 
 
 class McapProcess:
@@ -105,11 +111,15 @@ class McapProcess:
         self._apart = bytearray()
         """The batch's apart messages: handed over ahead of it."""
         self._flushing = False
+        self._cut_due = 0.0
+        self._since_cut = 0
+        """Bytes handed over since the last cut point."""
         self.before_chunk: Callable[[], None] | None = None
         """Called before each batch goes to the writer: the last chance to add apart
-        messages to go with it. They go ahead of the batch, and the writer cuts chunks only
-        where a batch ends, so a chunk's messages come with their apart ones
-        (`McapFile.before_chunk`'s promise, kept per batch)."""
+        messages to go with it, at most every `CUT_PERIOD_S` (else the batch goes without
+        asking). They go ahead of the batch, and the writer cuts chunks only where such a
+        batch ends, so a chunk's messages come with their apart ones (`McapFile.before_chunk`'s
+        promise, kept at the batches that asked)."""
         self._replies: queue.SimpleQueue[dict[str, Any] | None] = queue.SimpleQueue()
         command = [sys.executable, "-c", _BOOT, json.dumps(sys.path)]
         try:
@@ -202,18 +212,27 @@ class McapProcess:
         self._flush()
 
     def _flush(self) -> None:
-        if self.before_chunk is not None and not self._flushing:
+        cut_point = self.before_chunk is None
+        now = time.monotonic()
+        due = now >= self._cut_due or self._since_cut >= CUT_BYTES
+        if not cut_point and not self._flushing and due:
             self._flushing = True
             try:
                 self.before_chunk()
             finally:
                 self._flushing = False
+            self._cut_due = now + CUT_PERIOD_S
+            cut_point = True
         if self._apart:
             self._batch[:0] = self._apart
             self._apart.clear()
         if not self._batch or self._input.closed:
             return
-        self._batch += _RECORD.pack(_BATCH_END_OP, 0)
+        if cut_point:
+            self._batch += _RECORD.pack(_CUT_POINT_OP, 0)
+            self._since_cut = 0
+        else:
+            self._since_cut += len(self._batch)
         batch, fd = self._batch, self._input.fileno()
         started = time.monotonic()
         written = 0
@@ -319,7 +338,7 @@ def serve(path: str, profile: str, library: str) -> int:
     except UsageError as exc:
         _say(error=str(exc))
         return 2
-    mcap.defer_cuts = True  # chunks end where batches do: with their apart messages
+    mcap.defer_cuts = True  # chunks end at cut points: with their apart messages
     _say(started=True)
     source = sys.stdin.buffer
     head_size, fields_size = _RECORD.size, _MESSAGE_FIELDS.size
@@ -337,7 +356,7 @@ def serve(path: str, profile: str, library: str) -> int:
                 mcap.add_message(
                     channel_id, log_time, body[fields_size:], publish_time, apart=op == _APART_OP
                 )
-            elif op == _BATCH_END_OP:
+            elif op == _CUT_POINT_OP:
                 mcap.cut_if_due()
             elif op == _SCHEMA_OP:
                 _say(id=mcap.register_schema(*marshal.loads(body)))
