@@ -62,9 +62,10 @@ death can lose."""
 FLUSH_BYTES = 64 * 1024
 """...or as soon as it holds this much."""
 CUT_PERIOD_S = 0.5
-"""With `before_chunk` set, it is called at the first batch after this long (or after
-`CUT_BYTES`), and the writer may cut a chunk only after such a batch: the apart messages
-come in batches this long, not one per batch (fewer, larger messages to read back)."""
+"""With `before_chunk` set, it is called at the first batch after this long, by the clock
+or by the messages' log times (a recording written faster than real time), or after
+`CUT_BYTES`; the writer may cut a chunk only after such a batch: the apart messages come in
+batches this long, not one per batch (fewer, larger messages to read back)."""
 CUT_BYTES = 256 * 1024
 """...or after this much was handed over: a chunk overshoots its size by at most this."""
 PIPE_BYTES = 1024 * 1024
@@ -114,6 +115,9 @@ class McapProcess:
         self._cut_due = 0.0
         self._since_cut = 0
         """Bytes handed over since the last cut point."""
+        self._log_time = 0
+        """The latest log time handed over, and at the last cut point (ns)."""
+        self._cut_log_time = 0
         self.before_chunk: Callable[[], None] | None = None
         """Called before each batch goes to the writer: the last chance to add apart
         messages to go with it, at most every `CUT_PERIOD_S` (else the batch goes without
@@ -183,6 +187,8 @@ class McapProcess:
             published,
         )
         batch += data
+        if log_time > self._log_time:
+            self._log_time = log_time
         if not self._flushing and (len(batch) >= FLUSH_BYTES or now >= self._batch_due):
             self._flush()
 
@@ -214,7 +220,11 @@ class McapProcess:
     def _flush(self) -> None:
         cut_point = self.before_chunk is None
         now = time.monotonic()
-        due = now >= self._cut_due or self._since_cut >= CUT_BYTES
+        due = (
+            now >= self._cut_due
+            or self._since_cut >= CUT_BYTES
+            or self._log_time - self._cut_log_time >= CUT_PERIOD_S * 1e9
+        )
         if not cut_point and not self._flushing and due:
             self._flushing = True
             try:
@@ -222,6 +232,7 @@ class McapProcess:
             finally:
                 self._flushing = False
             self._cut_due = now + CUT_PERIOD_S
+            self._cut_log_time = self._log_time
             cut_point = True
         if self._apart:
             self._batch[:0] = self._apart
