@@ -17,8 +17,9 @@ any MCAP file. Topics:
 | `/fsp/events` | `wftool_msgs/msg/StreamEvents` | every read, connect, disconnect, command (2) |
 
 (1) A change is written with the frame before it, so a plot steps rather than ramps.
-(2) In batches: one message per `EVENT_BATCH_S` of events. Earlier recordings held one
-`StreamEvent` per event; they are read as well.
+(2) In batches: one message per `EVENT_BATCH_S` of events at most, fewer when the writer
+process asks for them sooner (`mcapprocess.CUT_PERIOD_S`, `CUT_BYTES`). Earlier recordings
+held one `StreamEvent` per event; they are read as well.
 
 `/fsp/events` holds the raw bytes exactly as read, so `wftool replay` reproduces the run.
 Its messages go into chunks of their own, each written before the chunk of the frames
