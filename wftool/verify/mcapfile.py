@@ -112,11 +112,9 @@ class McapFile:
         self._apart_bytes = 0
         self._latest = 0
         """The latest log time of the messages written."""
-        self.before_chunk: Callable[[], None] | None = None
         self.defer_cuts = False
         """True: chunks are cut only by `cut_if_due`, at points where the caller knows the
-        apart messages and the others agree (the writer process: at the end of a batch)."""
-        """Called before a chunk is written: the last chance to add apart messages to it."""
+        apart messages and the others agree (the writer process: its cut points)."""
         self.message_counts: Counter[int] = Counter()
         """Messages per channel id that are in the file (their chunk is written)."""
         self.time_range: tuple[int, int] | None = None
@@ -185,10 +183,7 @@ class McapFile:
             self._write_chunks()
 
     def _write_chunks(self) -> None:
-        """What is queued, as chunks: the apart messages (`before_chunk` may add some), then
-        the others."""
-        if self.before_chunk is not None:
-            self.before_chunk()
+        """What is queued, as chunks: the apart messages, then the others."""
         apart, held = self._apart, self._held
         self._apart, self._held, self._apart_bytes, self._held_bytes = [], [], 0, 0
         if apart:

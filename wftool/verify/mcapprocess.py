@@ -122,8 +122,7 @@ class McapProcess:
         """Called before each batch goes to the writer: the last chance to add apart
         messages to go with it, at most every `CUT_PERIOD_S` (else the batch goes without
         asking). They go ahead of the batch, and the writer cuts chunks only where such a
-        batch ends, so a chunk's messages come with their apart ones (`McapFile.before_chunk`'s
-        promise, kept at the batches that asked)."""
+        batch ends, so a chunk's messages come with their apart ones."""
         self._replies: queue.SimpleQueue[dict[str, Any] | None] = queue.SimpleQueue()
         command = [sys.executable, "-c", _BOOT, json.dumps(sys.path)]
         try:
