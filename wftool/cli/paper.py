@@ -38,7 +38,7 @@ def paper_group() -> None:
 @click.option("--port", "msp_url", metavar="URL",
               help="A board's MSP/CLI port (with --fsp-port) [the virtual FC].")  # fmt: skip
 @click.option("--fsp-port", "fsp_url", metavar="URL", help="The board's FSP port.")
-@click.option("--fsp-baud", type=int, default=DEFAULT_BAUDRATE, show_default=True)
+@click.option("--fsp-baud", type=click.IntRange(1), default=DEFAULT_BAUDRATE, show_default=True)
 @click.option(
     "--fsp-rate",
     type=click.IntRange(RATE_HZ_MIN, RATE_HZ_MAX),

@@ -29,7 +29,7 @@ def record_group() -> None:
 
 @record_group.command("msp")
 @click.option("--port", "url", required=True, help="The FC's MSP port: device or pyserial URL.")
-@click.option("--baud", type=int, default=115200, show_default=True)
+@click.option("--baud", type=click.IntRange(1), default=115200, show_default=True)
 @click.option("--duration", type=float, help="Seconds to poll [until Ctrl-C].")
 @click.option(
     "--out",
