@@ -10,6 +10,7 @@ tests at an existing binary instead. Every virtual FC a test starts takes a free
 
 from __future__ import annotations
 
+import contextlib
 import os
 import subprocess
 from collections.abc import Iterator
@@ -55,16 +56,28 @@ def fresh_clone(tmp_path_factory: pytest.TempPathFactory) -> Project:
     return Project(root)
 
 
+@contextlib.contextmanager
+def _build_date(project: Project) -> Iterator[None]:
+    """Build with SOURCE_DATE_EPOCH at the clone's commit time: the session's builds carry one
+    `__DATE__`/`__TIME__`, so the SITL build can stand in for the board build's firmware
+    (tests/flash/virtual_board.py)."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("SOURCE_DATE_EPOCH", _git(project.root, "log", "-1", "--format=%ct"))
+        yield
+
+
 @pytest.fixture(scope="session")
 def sitl_build(fresh_clone: Project) -> BuildResult:
     """The first build of the session: fetches the tree, applies the series, builds SITL."""
-    return build(fresh_clone, "sitl", BuildOptions(jobs=BUILD_JOBS))
+    with _build_date(fresh_clone):
+        return build(fresh_clone, "sitl", BuildOptions(jobs=BUILD_JOBS))
 
 
 @pytest.fixture(scope="session")
 def board_build(fresh_clone: Project, sitl_build: BuildResult) -> BuildResult:
     """speedybeef7v3 in the same clone (widens the sparse checkout to STM32F7)."""
-    return build(fresh_clone, "speedybeef7v3", BuildOptions(jobs=BUILD_JOBS))
+    with _build_date(fresh_clone):
+        return build(fresh_clone, "speedybeef7v3", BuildOptions(jobs=BUILD_JOBS))
 
 
 @pytest.fixture(scope="session")

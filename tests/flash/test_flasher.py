@@ -1,10 +1,10 @@
-"""`wftool flash` end to end: the real SITL plays the FC, a STAND-IN plays dfu-util.
+"""`wftool flash` on a virtual board: the real SITL plays the FC (MSP, the `diff all` backup,
+the reboot into the bootloader, the FC coming back), the real dfu-util and libusb write the
+emulated STM32F722 bootloader's flash, and test scaffolding joins the two
+(tests/flash/virtual_board.py). Judged by reading the emulated flash afterwards.
 
-Real: identifying the FC over MSP, the `diff all` backup, the MSP reboot into the
-bootloader (SITL logs it and exits), and, after "flashing", the FC coming back and being
-asked over MSP which build it runs. Simulated: the USB bootloader (tests/flash/
-standin_dfu_util.py), and the board booting the written image — SITL restarts with its
-own build, so the success tests flash an image that carries SITL's build strings.
+SITL comes back running its own build, so the synthetic images here carry the SITL's build
+identity; `test_wftool_flash_on_a_virtual_speedybeef7v3` flashes the real board build.
 """
 
 from __future__ import annotations
@@ -14,15 +14,26 @@ from dataclasses import replace
 from pathlib import Path
 
 import pytest
-from intelhex import IntelHex
 
-from tests.conftest import run_cli
+from tests.conftest import fc_settings, run_cli
 from tests.fc.faulty_transport import InjectFaults
-from tests.flash.standin import UNTOUCHED, StandinDfuUtil
-from wftool.cli import main
+from tests.flash.emulator import EmulatedBootloader
+from tests.flash.images import (
+    CONFIG_SECTOR,
+    FLASH_BASE,
+    OLD_FLASH,
+    VECTORS,
+    firmware_hex,
+    image_bytes,
+    sector,
+    sector_span,
+)
+from tests.flash.virtual_board import SPEEDYBEEF7V3, VirtualBoard
+from wftool.cli import fc as fc_commands
 from wftool.errors import FlashError, UsageError
 from wftool.fc.msp import BoardInfo, BuildInfo, MspClient
 from wftool.fc.params import apply_plan, plan_from_assignments
+from wftool.firmware import BuildResult
 from wftool.firmware.manifest import BuildFlags, Manifest
 from wftool.firmware.project import PROJECT_ENV
 from wftool.flash.flasher import find_manifest, flash_firmware, resolve_firmware
@@ -30,19 +41,26 @@ from wftool.flash.image import load_image
 from wftool.sitl.process import VirtualFC
 
 
-def _build_of(fc: VirtualFC) -> BuildInfo:
-    with MspClient.open(fc.url) as msp:
+def _build_of(board: VirtualBoard | VirtualFC) -> BuildInfo:
+    with MspClient.open(board.url) as msp:
         return msp.build_info()
 
 
-def _image(path: Path, build: BuildInfo, *strings: str) -> Path:
-    """A two-segment image (vector table, firmware) holding `build`'s identity strings."""
-    image = IntelHex()
-    image.puts(0x0800_0000, bytes(range(256)) * 2)
-    names = (build.date, build.time, build.git_revision + "f2", *strings)
-    image.puts(0x0800_8000, b"\0" + b"\0".join(s.encode() for s in names) + b"\0" * 4096)
-    image.write_hex_file(str(path))
-    return path
+def _image(board: VirtualBoard, path: Path, *strings: str, vectors: bytes = VECTORS) -> Path:
+    """An image the virtual board runs once flashed: its SITL's identity, STRINGS."""
+    return firmware_hex(path, _build_of(board), *strings, vectors=vectors)
+
+
+def _config(board: VirtualBoard) -> bytes:
+    """What the FC keeps its configuration in (SITL: eeprom.bin), as the config sector."""
+    start, end = sector_span(CONFIG_SECTOR)
+    return board.eeprom.read_bytes()[: end - start]
+
+
+def _one_line(error: pytest.ExceptionInfo[Exception]) -> str:
+    message = str(error.value)
+    assert "\n" not in message
+    return message
 
 
 def _manifest(directory: Path, hex_path: Path, **fields: str) -> Path:
@@ -75,100 +93,203 @@ def _manifest(directory: Path, hex_path: Path, **fields: str) -> Path:
     return manifest.path
 
 
+def test_flash_backs_up_writes_around_the_config_reads_back_and_confirms(
+    virtual_board: VirtualBoard, bootloader: EmulatedBootloader, tmp_path: Path
+) -> None:
+    apply_plan(virtual_board, plan_from_assignments(["p_pitch=55"]), tmp_path / "setup")
+    config = _config(virtual_board)
+    hex_path = _image(virtual_board, tmp_path / "fw.hex", "SITL", "STM32F7X2")
+    log: list[str] = []
+    report = flash_firmware(virtual_board, hex_path, backup_dir=tmp_path / "b", log=log.append)
+
+    assert report.backup is not None and "defaults nosave" in report.backup.read_text()
+    assert b"[system]ResetToBootloader!" in virtual_board.fc.log_path.read_bytes()
+    flash = bootloader.flash()
+    segments = image_bytes(hex_path)
+    for address, data in segments:  # every image region, byte for byte
+        assert flash[address - FLASH_BASE : address - FLASH_BASE + len(data)] == data
+    assert sector(flash, CONFIG_SECTOR) == config  # the config sector as the FC left it
+    for untouched in (3, 4, 5, 6, 7):  # sectors the image does not need: never erased
+        assert sector(flash, untouched) == sector(OLD_FLASH, untouched)
+    assert [event[1] for event in bootloader.events("erase")] == [0x0800_0000, 0x0800_8000]
+    assert report.erased == {0, 2}
+    assert report.verified == sum(len(data) for _, data in segments)
+    assert len(bootloader.events("upload")) >= 2  # read back before leaving
+    left = bootloader.left()
+    assert left is not None and (left.address, left.jumped, left.runs) == (FLASH_BASE, True, True)
+    assert report.after.build == _build_of(virtual_board)
+    assert "starting the firmware at 0x08000000" in log
+    assert fc_settings(virtual_board.fc, "p_pitch") == {"p_pitch": "55"}  # config survived
+
+
+def test_full_erase_wipes_the_config_and_restore_replays_the_backup(
+    virtual_board: VirtualBoard, bootloader: EmulatedBootloader, tmp_path: Path
+) -> None:
+    apply_plan(virtual_board, plan_from_assignments(["p_pitch=55"]), tmp_path / "setup")
+    hex_path = _image(virtual_board, tmp_path / "fw.hex", "SITL", "STM32F7X2")
+    report = flash_firmware(
+        virtual_board, hex_path, backup_dir=tmp_path / "b", full_erase=True, restore=True
+    )
+    assert [event[:2] for event in bootloader.events() if "erase" in event[0]] == [
+        ["mass_erase"],
+        ["erase", 0x0800_8000],  # the second download erases its sector again: harmless
+    ]
+    assert sector(bootloader.flash(), CONFIG_SECTOR) == b"\xff" * (16 << 10)
+    assert report.restored is not None
+    assert [(r.name, r.before, r.after) for r in report.restored.rows] == [
+        ("p_pitch", "47", "55")  # the FC came back with defaults; the backup put 55 back
+    ]
+    assert fc_settings(virtual_board.fc, "p_pitch") == {"p_pitch": "55"}
+
+
+def test_a_silently_corrupted_write_is_found_and_the_board_stays_in_dfu(
+    virtual_board: VirtualBoard, bootloader: EmulatedBootloader, tmp_path: Path
+) -> None:
+    hex_path = _image(virtual_board, tmp_path / "fw.hex", "SITL", "STM32F7X2")
+    bootloader.inject(corrupt_write_at=0x0800_8000 + 100)
+    with pytest.raises(FlashError) as error:
+        flash_firmware(virtual_board, hex_path, backup_dir=tmp_path / "b")
+    written = dict(image_bytes(hex_path))[0x0800_8000][100]
+    assert written != 0
+    backups = list((tmp_path / "b").iterdir())
+    assert _one_line(error) == (
+        "verifying the flash: the flash does not read back as written (1 byte(s) differ from "
+        f"0x08008000 on; the first, at 0x08008064, holds 0x{written & (written - 1):02x}, not "
+        f"0x{written:02x}); the board stays in its bootloader — configuration backup: "
+        f"{backups[0]} (`wftool restore {backups[0]}`); if the FC stays in DFU, retry with "
+        f"`wftool flash --no-reboot {hex_path}`"
+    )
+    assert bootloader.left() is None and bootloader.attached  # not left: no leave
+    assert not virtual_board.fc.running
+
+
+@pytest.mark.parametrize(
+    ("fault", "says"),
+    [
+        (
+            {"write_fails_at": 0x0800_8000},
+            "dfu-util failed writing at 0x08008000 (exit 74): DFU state(10) = dfuERROR, "
+            "status(3) = Device is unable to write memory; dfu-util: Failed to write whole "
+            "chunk: -1 of 2048 bytes",
+        ),
+        (
+            {"erase_fails_at": 0x0800_0000},
+            "dfu-util failed writing at 0x08000000 (exit 74): dfu-util: ERASE_PAGE not "
+            "correctly executed",
+        ),
+    ],
+)
+def test_a_failed_write_names_the_backup_and_a_retry_recovers(
+    virtual_board: VirtualBoard,
+    bootloader: EmulatedBootloader,
+    tmp_path: Path,
+    fault: dict[str, int],
+    says: str,
+) -> None:
+    hex_path = _image(virtual_board, tmp_path / "fw.hex", "SITL", "STM32F7X2")
+    bootloader.inject(**fault)
+    with pytest.raises(FlashError) as error:
+        flash_firmware(virtual_board, hex_path, backup_dir=tmp_path / "b")
+    (backup,) = (tmp_path / "b").iterdir()
+    assert _one_line(error) == (
+        f"writing the firmware: {says} — configuration backup: {backup} (`wftool restore "
+        f"{backup}`); if the FC stays in DFU, retry with `wftool flash --no-reboot {hex_path}`"
+    )
+    assert bootloader.attached and bootloader.left() is None
+    bootloader.inject()  # the retry the message advises, on the board still in DFU
+    report = flash_firmware(virtual_board, hex_path, backup_dir=tmp_path / "b", no_reboot=True)
+    assert report.after.build == _build_of(virtual_board)
+
+
+def test_a_board_vanishing_mid_download_is_a_clear_error(
+    virtual_board: VirtualBoard, bootloader: EmulatedBootloader, tmp_path: Path
+) -> None:
+    hex_path = _image(virtual_board, tmp_path / "fw.hex", "SITL", "STM32F7X2")
+    bootloader.inject(vanish_after_blocks=2)
+    with pytest.raises(FlashError) as error:
+        flash_firmware(virtual_board, hex_path, backup_dir=tmp_path / "b")
+    (backup,) = (tmp_path / "b").iterdir()
+    assert _one_line(error).startswith(
+        "writing the firmware: dfu-util failed writing at 0x08008000 (exit 74): dfu-util: "
+        "Error during download get_status; the board left USB (unplugged, or reset?) — "
+        f"configuration backup: {backup}"
+    )
+    assert not bootloader.attached
+
+
+def test_a_bootloader_that_never_appears_times_out(
+    sitl_binary: Path, bootloader: EmulatedBootloader, tmp_path: Path
+) -> None:
+    fc = VirtualFC(sitl_binary, tmp_path / "sitl", port_base=None)
+    with VirtualBoard(fc, bootloader, bootloader_appears=False) as board:
+        hex_path = _image(board, tmp_path / "fw.hex", "SITL", "STM32F7X2")
+        with pytest.raises(FlashError) as error:
+            flash_firmware(board, hex_path, backup_dir=tmp_path / "b", dfu_timeout=2)
+    (backup,) = (tmp_path / "b").iterdir()
+    assert _one_line(error).startswith(
+        "waiting for the DFU bootloader: no DFU device 0483:df11 appeared within 2 s: hold the "
+        "board's BOOT button"
+    )
+    assert f"configuration backup: {backup}" in str(error.value)
+    assert bootloader.flash() == OLD_FLASH
+
+
+def test_an_image_that_would_not_boot_is_refused_before_anything_happens(
+    virtual_board: VirtualBoard, bootloader: EmulatedBootloader, tmp_path: Path
+) -> None:
+    hex_path = _image(virtual_board, tmp_path / "fw.hex", "SITL", "STM32F7X2", vectors=b"")
+    with pytest.raises(UsageError) as error:
+        flash_firmware(virtual_board, hex_path, backup_dir=tmp_path / "b")
+    assert _one_line(error) == (
+        "refusing to flash fw.hex: the board would not boot from it (0x03020100 at 0x08000000 "
+        "is not an initial stack pointer in RAM; --force overrides)"
+    )
+    assert virtual_board.fc.running and virtual_board.fc.starts == 1
+    assert not (tmp_path / "b").exists() and bootloader.events("attached") == []
+
+
+def test_forced_onto_the_board_such_an_image_leaves_it_dark(
+    virtual_board: VirtualBoard, bootloader: EmulatedBootloader, tmp_path: Path
+) -> None:
+    hex_path = _image(virtual_board, tmp_path / "fw.hex", "SITL", "STM32F7X2", vectors=b"")
+    with pytest.raises(FlashError) as error:
+        flash_firmware(
+            virtual_board, hex_path, backup_dir=tmp_path / "b", force=True, boot_timeout=2
+        )
+    assert _one_line(error).startswith(
+        "waiting for the new firmware to start: the flight controller did not come back "
+        "within 2 s — configuration backup: "
+    )
+    left = bootloader.left()
+    assert left is not None and (left.jumped, left.runs) == (False, False)
+
+
 def test_mismatched_firmware_is_refused_before_anything_happens(
-    virtual_fc: VirtualFC, built_hex: Path, standin_dfu_util: StandinDfuUtil, tmp_path: Path
+    virtual_board: VirtualBoard, bootloader: EmulatedBootloader, built_hex: Path, tmp_path: Path
 ) -> None:
     with pytest.raises(
         UsageError, match=r"refusing to flash .*the image does not name the FC's target SITL"
     ):
-        flash_firmware(virtual_fc, built_hex, backup_dir=tmp_path / "backups")
-    assert virtual_fc.running and virtual_fc.starts == 1
+        flash_firmware(virtual_board, built_hex, backup_dir=tmp_path / "backups")
+    assert virtual_board.fc.running and virtual_board.fc.starts == 1
     assert not (tmp_path / "backups").exists()
-    assert standin_dfu_util.calls() == []
-
-
-def test_flash_backs_up_reboots_writes_around_the_config_and_verifies(
-    virtual_fc: VirtualFC, standin_dfu_util: StandinDfuUtil, tmp_path: Path
-) -> None:
-    apply_plan(virtual_fc, plan_from_assignments(["p_pitch=55"]), tmp_path / "backups")
-    build = _build_of(virtual_fc)
-    hex_path = _image(tmp_path / "fw.hex", build)
-    manifest = _manifest(
-        tmp_path / "build" / "SPEEDYBEEF7V3", hex_path, git_revision=build.git_revision + "f2"
-    )
-    standin_dfu_util.configure(appear_after_lists=2)  # the bootloader enumerates late
-    log: list[str] = []
-    report = flash_firmware(
-        virtual_fc,
-        manifest,
-        backup_dir=tmp_path / "backups",
-        force=True,
-        restore=True,
-        log=log.append,
-    )
-
-    assert any("flashing despite: built for STM32F7X2, the FC is SITL" in line for line in log)
-    assert report.backup is not None and "diff all" not in report.backup.read_text()
-    assert "defaults nosave" in report.backup.read_text()
-    assert b"[system]ResetToBootloader!" in virtual_fc.log_path.read_bytes()
-    downloads = [call for call in standin_dfu_util.calls() if "-D" in call]
-    assert [call[call.index("-s") + 1] for call in downloads] == ["0x08000000", "0x08008000:leave"]
-    flash = standin_dfu_util.flash()
-    assert flash[:512] == bytes(range(256)) * 2
-    assert flash[0x4000:0x8000] == bytes([UNTOUCHED]) * 0x4000  # config sector survived
-    assert report.erased == {0, 2}
-    assert report.after.build == build
-    assert report.restored is not None
-    assert [(r.name, r.after) for r in report.restored.rows] == [("p_pitch", "55")]
-
-
-def test_verification_failure_says_so_and_keeps_the_backup(
-    virtual_fc: VirtualFC, built_hex: Path, standin_dfu_util: StandinDfuUtil, tmp_path: Path
-) -> None:
-    # A real STM32F7X2 build; the FC that comes back (SITL) runs a different build.
-    with pytest.raises(FlashError) as error:
-        flash_firmware(virtual_fc, built_hex, backup_dir=tmp_path / "backups", force=True)
-    message = str(error.value)
-    assert "verification failed: the FC runs" in message
-    backups = list((tmp_path / "backups").iterdir())
-    assert len(backups) == 1 and f"configuration backup: {backups[0]}" in message
-    assert standin_dfu_util.flash()[0x4000:0x8000] == bytes([UNTOUCHED]) * 0x4000
-
-
-def test_write_failure_names_the_backup_and_the_next_step(
-    virtual_fc: VirtualFC, standin_dfu_util: StandinDfuUtil, tmp_path: Path
-) -> None:
-    hex_path = _image(tmp_path / "fw.hex", _build_of(virtual_fc), "STM32F7X2")
-    standin_dfu_util.configure(fail_at_percent=30)
-    with pytest.raises(FlashError) as error:
-        flash_firmware(virtual_fc, hex_path, backup_dir=tmp_path / "b", force=True)
-    message = str(error.value)
-    assert message.startswith("writing the firmware: dfu-util failed writing at 0x08008000")
-    assert "Device is unable to write memory" in message
-    assert f"retry with `wftool flash --no-reboot {hex_path}`" in message
-    assert "configuration backup: " in message
+    assert bootloader.events("attached") == [] and bootloader.flash() == OLD_FLASH
 
 
 def test_no_reboot_flashes_a_board_already_in_dfu(
-    sitl_binary: Path, standin_dfu_util: StandinDfuUtil, tmp_path: Path
+    virtual_board: VirtualBoard, bootloader: EmulatedBootloader, tmp_path: Path
 ) -> None:
-    fc = VirtualFC(sitl_binary, tmp_path / "sitl", port_base=None)
-    with fc:
-        build = _build_of(fc)
-    # The FC sits in its bootloader (SITL not running); flashing starts it again.
-    hex_path = _image(tmp_path / "fw.hex", build, "STM32F7X2")
-    try:
-        report = flash_firmware(fc, hex_path, backup_dir=tmp_path / "b", no_reboot=True)
-    finally:
-        fc.stop()
+    hex_path = _image(virtual_board, tmp_path / "fw.hex", "STM32F7X2")
+    virtual_board.enter_bootloader()  # BOOT held at power-up
+    report = flash_firmware(virtual_board, hex_path, backup_dir=tmp_path / "b", no_reboot=True)
     assert report.backup is None and report.before is None
-    assert report.after.build == build
+    assert report.after.build == _build_of(virtual_board)
+    assert not (tmp_path / "b").exists()
 
 
 def test_no_reboot_with_full_erase_needs_force(tmp_path: Path) -> None:
-    hex_path = _image(
-        tmp_path / "fw.hex", BuildInfo("Jan 01 2000", "00:00:00", "abcdef0"), "STM32F7X2"
-    )
+    build = BuildInfo("Jan 01 2000", "00:00:00", "abcdef0")
+    hex_path = firmware_hex(tmp_path / "fw.hex", build, "STM32F7X2")
     with pytest.raises(UsageError, match="without a backup; add --force"):
         flash_firmware(
             VirtualFC(tmp_path, tmp_path),
@@ -209,58 +330,55 @@ def test_bad_manifest_is_a_usage_error(tmp_path: Path) -> None:
 
 
 def test_wftool_flash_command_end_to_end(
-    on_sitl: VirtualFC,
-    standin_dfu_util: StandinDfuUtil,
-    tmp_path: Path,
-    capsys: pytest.CaptureFixture[str],
+    on_board: VirtualBoard, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    hex_path = _image(tmp_path / "fw.hex", _build_of(on_sitl), "SITL", "STM32F7X2")
-    with pytest.raises(SystemExit) as exit_info:
-        main(["flash", str(hex_path), "--backup-dir", str(tmp_path / "b")])
-    out, err = capsys.readouterr()
-    assert exit_info.value.code == 0
-    assert out.splitlines()[0] == "flashed fw.hex; erased sectors 0, 2"
-    assert "Download" in err and "100%" in err  # the progress bars
-    assert "get_status failed after leave, as usual" in err
+    hex_path = _image(on_board, tmp_path / "fw.hex", "SITL", "STM32F7X2")
+    code, out, err = run_cli(capsys, "flash", str(hex_path), "--backup-dir", str(tmp_path / "b"))
+    assert code == 0, err
+    verified = sum(len(data) for _, data in image_bytes(hex_path))
+    assert out.splitlines()[0] == (
+        f"flashed fw.hex; erased sectors 0, 2; {verified} bytes read back as written"
+    )
+    assert "Download" in err and "Verify" in err and "100%" in err  # the progress bars
 
 
 def test_an_image_for_another_mcu_is_bad_input(
-    on_sitl: VirtualFC,
-    standin_dfu_util: StandinDfuUtil,
+    on_board: VirtualBoard,
+    bootloader: EmulatedBootloader,
     tmp_path: Path,
     capsys: pytest.CaptureFixture[str],
 ) -> None:
-    hex_path = _image(tmp_path / "fw.hex", _build_of(on_sitl), "STM32F7X2")  # not "SITL"
+    hex_path = _image(on_board, tmp_path / "fw.hex", "STM32F7X2")  # not "SITL"
     code, _, err = run_cli(capsys, "flash", str(hex_path), "--backup-dir", str(tmp_path / "b"))
     assert (code, err.splitlines()[-1]) == (
         2,
         "error: refusing to flash fw.hex: the image does not name the FC's target SITL "
         "(--force overrides)",
     )
-    assert standin_dfu_util.calls() == [] and on_sitl.starts == 1
+    assert bootloader.events("attached") == [] and on_board.fc.starts == 1
 
 
 def test_full_erase_does_not_happen_after_an_incomplete_backup(
-    on_sitl: VirtualFC,
-    standin_dfu_util: StandinDfuUtil,
+    on_board: VirtualBoard,
+    bootloader: EmulatedBootloader,
     tmp_path: Path,
     inject_faults: InjectFaults,
     capsys: pytest.CaptureFixture[str],
 ) -> None:
     # The FC's `diff all` loses its rest after a `# ` line (tests/fc/faulty_transport.py).
     faults = inject_faults(stall_after_comment=5, stall_s=None)
-    hex_path = _image(tmp_path / "fw.hex", _build_of(on_sitl), "SITL", "STM32F7X2")
+    hex_path = _image(on_board, tmp_path / "fw.hex", "SITL", "STM32F7X2")
     code, _, err = run_cli(capsys, "flash", str(hex_path), "--full-erase", "--backup-dir",
                            str(tmp_path / "b"))  # fmt: skip
     assert faults.fired and faults.fired[0].startswith("`diff all` lost the rest")
     assert code == 1
     assert err.splitlines()[-1].startswith("error: the FC's `diff all` output on ")
     assert "incomplete" in err.splitlines()[-1]
-    assert standin_dfu_util.calls() == []  # never in DFU, never erased
-    assert standin_dfu_util.flash() == bytes([UNTOUCHED]) * len(standin_dfu_util.flash())
-    assert b"ResetToBootloader" not in on_sitl.log_path.read_bytes()
+    assert bootloader.events("attached") == []  # never in DFU, never erased
+    assert bootloader.flash() == OLD_FLASH
+    assert b"ResetToBootloader" not in on_board.fc.log_path.read_bytes()
     assert list((tmp_path / "b").iterdir()) == []
-    assert _build_of(on_sitl).git_revision  # out of its CLI: it answers MSP
+    assert _build_of(on_board).git_revision  # out of its CLI: it answers MSP
 
 
 def _project(root: Path) -> Path:
@@ -274,7 +392,8 @@ def test_default_firmware_is_found_through_the_project_not_the_cwd(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     project = _project(tmp_path / "checkout")
-    hex_path = _image(project / "fw.hex", BuildInfo("Jan 01 2000", "00:00:00", "abcdef0"))
+    build = BuildInfo("Jan 01 2000", "00:00:00", "abcdef0")
+    hex_path = firmware_hex(project / "fw.hex", build)
     built = _manifest(project / "build" / "speedybeef7v3", hex_path)
     subdirectory = project / "docs" / "notes"
     subdirectory.mkdir(parents=True)
@@ -287,16 +406,15 @@ def test_default_firmware_is_found_through_the_project_not_the_cwd(
 
 
 def test_wftool_flash_from_a_subdirectory_flashes_the_projects_build(
-    on_sitl: VirtualFC,
-    standin_dfu_util: StandinDfuUtil,
+    on_board: VirtualBoard,
     tmp_path: Path,
     monkeypatch: pytest.MonkeyPatch,
     capsys: pytest.CaptureFixture[str],
 ) -> None:
-    with MspClient.open(on_sitl.url) as msp:
+    with MspClient.open(on_board.url) as msp:
         fc = msp.identify()
     project = _project(tmp_path / "checkout")
-    hex_path = _image(project / "fw.hex", fc.build, "STM32F7X2")
+    hex_path = firmware_hex(project / "fw.hex", fc.build, "STM32F7X2")
     _manifest(
         project / "build" / "sitl",
         hex_path,
@@ -310,4 +428,49 @@ def test_wftool_flash_from_a_subdirectory_flashes_the_projects_build(
     monkeypatch.delenv(PROJECT_ENV, raising=False)
     code, out, err = run_cli(capsys, "flash", "--backup-dir", str(tmp_path / "b"))
     assert code == 0, err
-    assert out.splitlines()[0] == "flashed fw.hex; erased sectors 0, 2"
+    assert out.splitlines()[0].startswith("flashed fw.hex; erased sectors 0, 2; ")
+
+
+def test_wftool_flash_on_a_virtual_speedybeef7v3(
+    sitl_build: BuildResult,
+    board_build: BuildResult,
+    bootloader: EmulatedBootloader,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """The whole `wftool flash`, no FIRMWARE named: the board build of this session onto a
+    virtual SPEEDYBEEF7V3 (the session's SITL, presented as that board by the scaffolding)."""
+    fc = VirtualFC(sitl_build.firmware, tmp_path / "sitl", port_base=None)
+    with VirtualBoard(fc, bootloader, identity=SPEEDYBEEF7V3) as board:
+        monkeypatch.setattr(fc_commands, "find_board", lambda port, present=True: board)
+        apply_plan(board, plan_from_assignments(["p_pitch=55"]), tmp_path / "setup")
+        config = _config(board)
+        build_dir = board_build.manifest.path.parent.parent
+        code, out, err = run_cli(capsys, "flash", "--build-dir", str(build_dir), "--restore",
+                                 "--backup-dir", str(tmp_path / "b"))  # fmt: skip
+        assert code == 0, err
+        image = load_image(board_build.firmware)
+        segments = [(s, bytes(image.tobinarray(start=s, size=e - s))) for s, e in image.segments()]
+        lines = out.splitlines()
+        assert lines[0] == (
+            f"flashed {board_build.firmware.name}; erased sectors 0, 2, 3, 4, 5, 6, 7; "
+            f"{sum(len(data) for _, data in segments)} bytes read back as written"
+        )
+        assert lines[1].startswith(f"configuration backup: {tmp_path / 'b'}/SPEEDYBEEF7V3-")
+        flash = bootloader.flash()
+        for address, data in segments:
+            assert flash[address - FLASH_BASE : address - FLASH_BASE + len(data)] == data
+        assert sector(flash, CONFIG_SECTOR) == config
+        end = segments[-1][0] + len(segments[-1][1]) - FLASH_BASE
+        assert flash[end : sector_span(7)[1]] == b"\xff" * (sector_span(7)[1] - end)
+        assert [e[1] for e in bootloader.events("erase")] == [
+            0x0800_0000, 0x0800_8000, 0x0800_C000, 0x0801_0000, 0x0802_0000, 0x0804_0000,
+            0x0806_0000,
+        ]  # fmt: skip
+        left = bootloader.left()
+        assert left is not None and (left.address, left.jumped, left.runs) == (
+            FLASH_BASE, True, True
+        )  # fmt: skip
+        assert "p_pitch" in out  # --restore replayed the backup: its report
+        assert fc_settings(board.fc, "p_pitch") == {"p_pitch": "55"}

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import struct
 from pathlib import Path
 
 import pytest
@@ -15,6 +16,7 @@ from wftool.flash.image import (
     contains_string,
     erased_sectors,
     load_image,
+    vector_table_problem,
     write_regions,
 )
 
@@ -22,9 +24,12 @@ F7X2 = MCU_FLASH["STM32F7X2"]
 
 
 def test_f722_bootloader_layout_string_matches_the_table() -> None:
-    # alt 0 of the STM32F722 ROM bootloader, as `dfu-util -l` prints it
-    name = "@Internal Flash  /0x08000000/04*016Kg,01*064Kg,03*128Kg"
-    assert FlashLayout.from_dfuse_name(name) == STM32F72X
+    # alt 0 of an STM32F72x ROM bootloader as `dfu-util -l` prints it, and the F4's spelling
+    for name in (
+        "@Internal Flash  /0x08000000/04*016Kg,01*64Kg,03*128Kg",
+        "@Internal Flash  /0x08000000/04*016Kg,01*064Kg,03*128Kg",
+    ):
+        assert FlashLayout.from_dfuse_name(name) == STM32F72X
     assert STM32F72X.end == 0x0808_0000
     assert FlashLayout.from_dfuse_name("@Option Bytes  /0x1FFF0000/01*032 e") == FlashLayout(
         0x1FFF_0000, (32,)
@@ -89,3 +94,25 @@ def test_unreadable_firmware_is_a_usage_error(tmp_path: Path) -> None:
     bad.write_text(":zz\n")
     with pytest.raises(UsageError, match=f"cannot read firmware {bad}"):
         load_image(bad)
+
+
+def test_a_betaflight_image_starts_with_a_vector_table(built_hex: Path) -> None:
+    assert vector_table_problem(load_image(built_hex), STM32F72X.base, F7X2) is None
+
+
+@pytest.mark.parametrize(
+    ("vectors", "problem"),
+    [
+        ((0x2001_0000, 0x0800_0101), None),
+        ((0x2004_0000, 0x0800_0101), None),  # the stack may start at the top of RAM
+        ((0x2004_0004, 0x0800_0101), "0x20040004 at 0x08000000 is not an initial stack pointer"),
+        ((0xFFFF_FFFF, 0xFFFF_FFFF), "0xffffffff at 0x08000000 is not an initial stack pointer"),
+        ((0x2001_0000, 0x0800_0100), "its reset handler 0x08000100 is not Thumb code"),
+        ((0x2001_0000, 0x0801_0001), "its reset handler 0x08010001 is not Thumb code"),
+    ],
+)
+def test_vector_table_problems(vectors: tuple[int, int], problem: str | None) -> None:
+    image = IntelHex()
+    image.puts(0x0800_0000, struct.pack("<II", *vectors) + bytes(0x200))
+    found = vector_table_problem(image, 0x0800_0000, F7X2)
+    assert found == problem if problem is None else (found or "").startswith(problem)

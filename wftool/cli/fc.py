@@ -214,7 +214,10 @@ def flash(
             log=log,
         )
     erased = ", ".join(str(s) for s in sorted(report.erased))
-    console.print(f"flashed {report.firmware.path.name}; erased sectors {erased}")
+    console.print(
+        f"flashed {report.firmware.path.name}; erased sectors {erased}; "
+        f"{report.verified} bytes read back as written"
+    )
     if report.backup:
         console.print(f"configuration backup: {report.backup}")
     if report.restored:

@@ -1,15 +1,14 @@
 """The flash backend: one small base class, one subclass per tool (as Zephyr's west runners).
 
-The flasher owns the flow (identify, back up, reboot to the bootloader, confirm); a
-backend only finds the board in its bootloader and writes regions. `wftool.flash.dfu`
-is the one so far (dfu-util, the STM32 ROM bootloader).
+The flasher owns the flow (identify, back up, reboot to the bootloader, write, read back,
+leave, confirm); a backend only finds the board in its bootloader and moves bytes.
+`wftool.flash.dfu` is the one so far (dfu-util, the STM32 ROM bootloader).
 """
 
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections.abc import Callable
-from pathlib import Path
 from typing import Protocol
 
 from wftool.flash.image import FlashLayout
@@ -30,7 +29,7 @@ class Device(Protocol):
 
 
 class FlashBackend(ABC):
-    """Writes images into a board's flash through one tool."""
+    """Writes, reads back and starts images in a board's flash through one tool."""
 
     @abstractmethod
     def wait_for_device(self, timeout: float) -> Device:
@@ -41,11 +40,21 @@ class FlashBackend(ABC):
         self,
         device: Device,
         address: int,
-        image_file: Path,
+        data: bytes,
         *,
-        leave: bool,
         mass_erase: bool = False,
         progress: Progress | None = None,
-    ) -> str | None:
-        """Write `image_file` at `address`; `leave` then starts the firmware. Returns a
-        remark for the log (something the tool said that is not a failure), or None."""
+    ) -> None:
+        """Write `data` at `address`, erasing what it covers (`mass_erase`: the whole flash
+        first)."""
+
+    @abstractmethod
+    def read(
+        self, device: Device, address: int, length: int, *, progress: Progress | None = None
+    ) -> bytes:
+        """The `length` bytes at `address`, read back from the board."""
+
+    @abstractmethod
+    def leave(self, device: Device, address: int) -> str | None:
+        """Leave the bootloader and start the image whose vector table is at `address`.
+        Returns a remark for the log (something the tool said that is not a failure)."""

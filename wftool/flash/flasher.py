@@ -1,14 +1,17 @@
-"""`wftool flash`: identify, back up, reboot to DFU, write, confirm — config sector untouched.
+"""`wftool flash`: identify, back up, reboot to DFU, write, read back, leave, confirm — the
+config sector untouched.
 
-Order matters: an image that does not fit the FC is refused (`UsageError`, exit 2) before
-anything happens; nothing is erased before a configuration backup proven complete exists;
-every failure after that names the backup and the next step. Success means the firmware
-that comes back reports a build (date, time, git revision) that is in the image just written.
+Order matters: an image that does not fit the FC, or would not boot (no vector table at its
+start), is refused (`UsageError`, exit 2) before anything happens; nothing is erased before
+a configuration backup proven complete exists; every failure after that names the backup
+and the next step. What was written is read back and compared before the bootloader is
+left (as Betaflight Configurator verifies): a difference is an error and the board stays in
+its bootloader. Success means the firmware that comes back reports a build (date, time,
+git revision) that is in the image just written.
 """
 
 from __future__ import annotations
 
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -28,6 +31,7 @@ from wftool.flash.image import (
     contains_string,
     erased_sectors,
     load_image,
+    vector_table_problem,
     write_regions,
 )
 from wftool.progress import Log, quiet
@@ -131,6 +135,8 @@ class FlashReport:
     firmware: Firmware
     backup: Path | None
     erased: set[int]
+    verified: int
+    """Bytes read back from the board and found as written."""
     before: FcIdentity | None
     after: FcIdentity
     restored: ChangeReport | None
@@ -180,6 +186,12 @@ def flash_firmware(
             f"{firmware.path.name} covers the config sector at 0x{mcu.config_address:08x} "
             "(a .bin does; use the .hex), or pass --full-erase to wipe the configuration"
         )
+    start = regions[0].address
+    if (problem := vector_table_problem(firmware.image, start, mcu)) and not force:
+        raise UsageError(
+            f"refusing to flash {firmware.path.name}: the board would not boot from it "
+            f"({problem}; --force overrides)"
+        )
     if no_reboot and full_erase and not force:
         raise UsageError(
             "--full-erase with --no-reboot erases the configuration without a "
@@ -208,25 +220,35 @@ def flash_firmware(
                 "of the firmware's MCU (--force overrides)"
             )
         stage = "writing the firmware"
-        with tempfile.TemporaryDirectory(prefix="wftool-flash-") as scratch:
-            for index, region in enumerate(regions):
-                last = index == len(regions) - 1
-                log(
-                    f"writing {len(region.data)} bytes at 0x{region.address:08x} "
-                    f"({index + 1}/{len(regions)})"
+        for index, region in enumerate(regions):
+            log(
+                f"writing {len(region.data)} bytes at 0x{region.address:08x} "
+                f"({index + 1}/{len(regions)})"
+            )
+            backend.write(
+                device,
+                region.address,
+                region.data,
+                mass_erase=full_erase and index == 0,
+                progress=progress,
+            )
+        stage = "verifying the flash"
+        verified = 0
+        for region in regions:
+            log(f"reading back {len(region.data)} bytes at 0x{region.address:08x}")
+            read = backend.read(
+                device, region.address, len(region.data), progress=_as_phase("Verify", progress)
+            )
+            if problem := _difference(region.address, region.data, read):
+                raise FlashError(
+                    f"the flash does not read back as written ({problem}); the board stays "
+                    "in its bootloader"
                 )
-                region_file = Path(scratch) / f"region-{index}.bin"
-                region_file.write_bytes(region.data)
-                remark = backend.write(
-                    device,
-                    region.address,
-                    region_file,
-                    leave=last,
-                    mass_erase=full_erase and index == 0,
-                    progress=progress,
-                )
-                if remark:
-                    log(remark)
+            verified += len(read)
+        stage = "leaving the bootloader"
+        log(f"starting the firmware at 0x{start:08x}")
+        if remark := backend.leave(device, start):
+            log(remark)
         stage = "waiting for the new firmware to start"
         board.wait_back(boot_timeout)
         with MspClient.open(board.url) as msp:
@@ -234,7 +256,7 @@ def flash_firmware(
         if not firmware.is_running(after.build):
             build = after.build
             raise FlashError(
-                f"verification failed: the FC runs {build.git_revision} built {build.date} "
+                f"the FC that came back runs {build.git_revision} built {build.date} "
                 f"{build.time}, which is not {firmware.path.name}"
             )
     except WftoolError as exc:
@@ -244,7 +266,28 @@ def flash_firmware(
     if restore and backup is not None:
         log(f"restoring the configuration from {backup}")
         restored = apply_plan(board, plan_from_file(backup), backup_dir, log)
-    return FlashReport(firmware, backup, erased, before, after, restored)
+    return FlashReport(firmware, backup, erased, verified, before, after, restored)
+
+
+def _as_phase(phase: str, progress: Progress | None) -> Progress | None:
+    """PROGRESS, reporting every update as PHASE."""
+    if progress is None:
+        return None
+    return lambda _phase, percent, done: progress(phase, percent, done)
+
+
+def _difference(address: int, written: bytes, read: bytes) -> str | None:
+    """Where READ differs from WRITTEN (both at ADDRESS), or None."""
+    if read == written:
+        return None
+    if len(read) != len(written):
+        return f"{len(read)} bytes came back for {len(written)} at 0x{address:08x}"
+    offsets = [i for i, (a, b) in enumerate(zip(written, read)) if a != b]
+    first = offsets[0]
+    return (
+        f"{len(offsets)} byte(s) differ from 0x{address:08x} on; the first, at "
+        f"0x{address + first:08x}, holds 0x{read[first]:02x}, not 0x{written[first]:02x}"
+    )
 
 
 def _next_step(firmware: Path, backup: Path | None) -> str:

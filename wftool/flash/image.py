@@ -11,6 +11,7 @@ first; `write_regions` merges them, filling the gap with 0xFF (erased flash).
 from __future__ import annotations
 
 import re
+import struct
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -71,13 +72,16 @@ class McuFlash:
     layout: FlashLayout
     config_address: int
     """Start of the sector holding Betaflight's EEPROM emulation (linker script)."""
+    ram: tuple[int, int]
+    """[start, end] of the RAM an initial stack pointer may point into (end included: the
+    stack grows down from it)."""
 
     @property
     def config_sector(self) -> int:
         return self.layout.sector_of(self.config_address)
 
 
-MCU_FLASH = {"STM32F7X2": McuFlash(STM32F72X, 0x0800_4000)}
+MCU_FLASH = {"STM32F7X2": McuFlash(STM32F72X, 0x0800_4000, (0x2000_0000, 0x2004_0000))}
 """Keyed by Betaflight's target name as MSP board info reports it."""
 
 
@@ -126,6 +130,19 @@ def write_regions(image: IntelHex, layout: FlashLayout) -> list[WriteRegion]:
 def erased_sectors(regions: list[WriteRegion], layout: FlashLayout) -> set[int]:
     """Sectors the downloads erase (DfuSe erases every sector a download touches)."""
     return {index for region in regions for index in layout.sectors(region.address, region.end)}
+
+
+def vector_table_problem(image: IntelHex, address: int, mcu: McuFlash) -> str | None:
+    """Why the core would not start from a vector table at `address` of `image` (None: it
+    would). A Cortex-M loads its stack pointer and reset handler from there, and the STM32
+    bootloader jumps there when it leaves (ST AN3156)."""
+    stack, reset = struct.unpack("<II", bytes(image.tobinarray(start=address, size=8)))
+    if not (mcu.ram[0] < stack <= mcu.ram[1] and stack % 4 == 0):
+        return f"0x{stack:08x} at 0x{address:08x} is not an initial stack pointer in RAM"
+    handler = reset & ~1
+    if not (reset & 1 and any(start <= handler < end for start, end in image.segments())):
+        return f"its reset handler 0x{reset:08x} is not Thumb code in the image"
+    return None
 
 
 def contains_string(image: IntelHex, text: str, *, whole: bool = True) -> bool:
