@@ -113,15 +113,19 @@ def _run(
     return status, lines
 
 
-def _failure(what: str, status: int, lines: list[str]) -> FlashError:
-    """dfu-util's own words on why WHAT failed, in one line."""
-    errors = [
+def _errors(lines: list[str]) -> list[str]:
+    """dfu-util's error lines (its warnings about DFU suffixes are none)."""
+    return [
         line
         for line in lines
         if line.startswith("DFU state(10)")
         or (line.startswith("dfu-util: ") and "suffix" not in line)
     ]
-    reason = "; ".join(errors[-2:]) or (lines[-1] if lines else "no output")
+
+
+def _failure(what: str, status: int, lines: list[str]) -> FlashError:
+    """dfu-util's own words on why WHAT failed, in one line."""
+    reason = "; ".join(_errors(lines)[-2:]) or (lines[-1] if lines else "no output")
     return FlashError(f"dfu-util failed {what} (exit {status}): {reason}")
 
 
@@ -207,7 +211,7 @@ def leave(device: DfuDevice, address: int) -> str | None:
     if "Submitting leave request..." in lines:
         if status == 0:
             return None
-        if lines[-1] == LEAVE_STATUS_ERROR:
+        if _errors(lines) == [LEAVE_STATUS_ERROR]:
             return "the bootloader reset before answering the leave request, as some STM32 ROMs do"
     raise _failure(f"leaving the bootloader for 0x{address:08x}", status, lines)
 
