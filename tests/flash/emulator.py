@@ -75,7 +75,13 @@ class EmulatedBootloader:
             stderr=self._log,
             text=True,
         )
-        self.root = str(self._reply()["root"])
+        try:
+            self.root = str(self._reply()["root"])
+        except BaseException:
+            self._process.kill()
+            self._process.wait()
+            self._log.close()
+            raise
         self.dfu_util = ("env", f"UMOCKDEV_DIR={self.root}", "umockdev-wrapper", "dfu-util")
         """The real dfu-util, run against this emulated device."""
 
@@ -149,7 +155,10 @@ class EmulatedBootloader:
             except subprocess.TimeoutExpired:
                 self._process.kill()
                 self._process.wait()
+        assert self._process.stdout is not None
+        self._process.stdout.close()
         self._log.close()
+        shutil.rmtree(self.root, ignore_errors=True)  # if the host could not
 
     def __enter__(self) -> EmulatedBootloader:
         return self

@@ -18,6 +18,7 @@ from __future__ import annotations
 import base64
 import errno
 import json
+import shutil
 import struct
 import sys
 import threading
@@ -348,14 +349,18 @@ class Host:
 
 def main() -> None:
     host = Host()
-    print(json.dumps({"root": host.testbed.get_root_dir()}), flush=True)
-    for line in sys.stdin:
-        try:
-            reply = host.command(json.loads(line))
-        except Exception as exc:
-            reply = {"error": f"{type(exc).__name__}: {exc}"}
-        print(json.dumps(reply), flush=True)
-    host.detach()
+    root = host.testbed.get_root_dir()
+    try:
+        print(json.dumps({"root": root}), flush=True)
+        for line in sys.stdin:
+            try:
+                reply = host.command(json.loads(line))
+            except Exception as exc:
+                reply = {"error": f"{type(exc).__name__}: {exc}"}
+            print(json.dumps(reply), flush=True)
+        host.detach()
+    finally:
+        shutil.rmtree(root, ignore_errors=True)  # the testbed outlives a process that ends
 
 
 if __name__ == "__main__":
