@@ -19,7 +19,7 @@ import serial
 from wftool.errors import MspError, PortError, UsageError
 from wftool.fc.cli_session import CliSession, cli_is_open
 from wftool.fc.msp import MspClient
-from wftool.fc.transport import STM32_VCP, open_port, usb_ports
+from wftool.link.transport import STM32_VCP, open_port, usb_ports
 from wftool.progress import Log, quiet
 
 RESET_GRACE_S = 0.5

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import serial
 
 from wftool.errors import CliCommandError, PortError, ProtocolError
-from wftool.fc.transport import open_port, port_errors
+from wftool.link.transport import open_port, port_errors
 
 PROMPT = b"\r\n# "
 SETTLE_S = 0.05

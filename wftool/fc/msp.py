@@ -17,8 +17,8 @@ from dataclasses import dataclass
 import serial
 
 from wftool.errors import MspError
-from wftool.fc.transport import open_port, port_errors
-from wftool.fsp.crc import DVB_S2_INIT, crc8
+from wftool.link.crc import DVB_S2_INIT, crc8
+from wftool.link.transport import open_port, port_errors
 
 
 class MspVersion(enum.IntEnum):
@@ -298,7 +298,7 @@ class MspClient:
     def open(
         cls, url: str, *, version: MspVersion = MspVersion.V2, timeout: float = 1.0
     ) -> MspClient:
-        """Open `url` (see `wftool.fc.transport.open_port`) and talk MSP on it."""
+        """Open `url` (see `wftool.link.transport.open_port`) and talk MSP on it."""
         return cls(open_port(url, timeout=0.05), version=version, timeout=timeout)
 
     def close(self) -> None:

@@ -49,7 +49,7 @@ import serial
 
 from wftool.errors import UsageError
 from wftool.fc.msp import Cmd, FrameReader, MspFrame, MspVersion, encode_request
-from wftool.fc.transport import port_errors, read_within, selectable_fd
+from wftool.link.transport import port_errors, read_within, selectable_fd
 
 DEFAULT_WINDOW = 4
 """Requests in flight at most: 36 bytes of MSP v2 requests (24 of v1), far below any FC

@@ -33,7 +33,7 @@ from wftool.fc.backup import check_backup_dir, feature_mask_of, write_backup
 from wftool.fc.board import Board, leave_open_cli, wait_after_drop
 from wftool.fc.cli_session import CliSession, Setting, line_problem
 from wftool.fc.msp import RECEIVER_FEATURES, MspClient
-from wftool.fc.transport import open_port
+from wftool.link.transport import open_port
 from wftool.progress import Log, quiet
 
 if sys.version_info >= (3, 11):

@@ -18,9 +18,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from wftool.errors import FlashError
-from wftool.fc.transport import STM32_DFU, UsbId
 from wftool.flash.backend import Device, FlashBackend, Progress
 from wftool.flash.image import FlashLayout
+from wftool.link.transport import STM32_DFU, UsbId
 
 DFU_UTIL = "dfu-util"
 NO_DEVICE_HINT = (

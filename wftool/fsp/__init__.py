@@ -4,7 +4,6 @@ Contract: spec/fsp.md. Where things live:
 
 - `packets`  — models (`StatePacket`, `SensorFrame`, `CommandPacket`, `TimeReply`) and layouts
 - `framing`  — COBS framing and the length/version/CRC checks (`Deframer`, `Rejection`)
-- `crc`      — the table-driven CRC-8
 - `decoder`  — `StateDecoder`: bytes in, timed packets out; loss, drops, resets counted
 - `encoder`  — wire bytes for both directions; `CommandSender` for the uplink
 - `clock`    — u32 unwrapping and OBC clock alignment (`make_estimator`: envelope, kalman,

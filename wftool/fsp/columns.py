@@ -42,7 +42,6 @@ from wftool.fsp.clock import (
     ClockEstimator,
     FcClock,
 )
-from wftool.fsp.crc import crc8_check_words
 from wftool.fsp.decoder import (
     JITTER_US,
     Reading,
@@ -64,6 +63,7 @@ from wftool.fsp.packets import (
     TUNNEL_LAYOUT,
     Layout,
 )
+from wftool.link.crc import crc8_check_words
 
 if TYPE_CHECKING:
     import numpy as np

@@ -12,7 +12,6 @@ from collections.abc import Mapping
 
 from cobs import cobs
 
-from wftool.fsp.crc import crc8_residues
 from wftool.fsp.packets import (
     COMMAND_LENGTH,
     STATE_LENGTH,
@@ -21,6 +20,7 @@ from wftool.fsp.packets import (
     VERSION_BASE,
     VERSION_TUNNEL,
 )
+from wftool.link.crc import crc8_residues
 
 DELIMITER = b"\x00"
 

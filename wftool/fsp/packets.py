@@ -11,7 +11,7 @@ import math
 import struct
 from dataclasses import dataclass, field
 
-from wftool.fsp.crc import crc8
+from wftool.link.crc import crc8
 
 VERSION = 5
 TUNNEL_FLAG = 0x80

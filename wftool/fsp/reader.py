@@ -25,10 +25,10 @@ from typing import TypeVar
 import serial
 
 from wftool.errors import PortError
-from wftool.fc.transport import open_port, port_errors, read_within, selectable_fd
 from wftool.fsp.decoder import StateDecoder
 from wftool.fsp.encoder import CommandSender, encode_command
 from wftool.fsp.packets import CommandPacket, SensorFrame, StatePacket
+from wftool.link.transport import open_port, port_errors, read_within, selectable_fd
 
 DEFAULT_BAUDRATE = 2_000_000
 """The FSP baud rate wftool assumes unless told otherwise (`verify`, the virtual FC)."""

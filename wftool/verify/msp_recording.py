@@ -56,7 +56,7 @@ from wftool.fc.msp_poller import (
     check_poll,
     describe,
 )
-from wftool.fc.transport import open_port
+from wftool.link.transport import open_port
 from wftool.progress import Log, quiet
 from wftool.verify import ros2
 from wftool.verify.recording import RecordingReader
