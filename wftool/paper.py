@@ -38,8 +38,8 @@ from wftool.fc.params import apply_plan, plan_from_assignments
 from wftool.fsp import DEFAULT_BAUDRATE
 from wftool.fsp.schedule import DEFAULT_RATE_HZ
 from wftool.progress import Log, quiet
+from wftool.recording.msp import record_msp
 from wftool.sitl.session import Motion, VirtualFcSession
-from wftool.verify.msp_recording import record_msp
 from wftool.verify.session import VerifyResult, VerifySession, fc_frame_rate_hz
 
 SERIAL_RATE_HZ = 1000

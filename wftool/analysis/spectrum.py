@@ -158,7 +158,7 @@ def _read_npz(path: Path) -> AccSeries:
 
 def _read_recording(path: Path) -> AccSeries:
     """The recording's frames, decoded from its raw bytes by the columnar decoder."""
-    from wftool.verify.recording import RecordingReader, recording_columns
+    from wftool.recording.reader import RecordingReader, recording_columns
 
     recording = RecordingReader(path)
     run = recording_columns(recording)

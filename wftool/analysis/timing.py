@@ -36,7 +36,8 @@ from wftool.errors import UsageError
 from wftool.fc.msp import Cmd
 from wftool.fsp.columns import StateColumns, decode_columns
 from wftool.fsp.packets import SEQ_MODULUS
-from wftool.verify import msp_recording, recording
+from wftool.recording import msp as msp_recording
+from wftool.recording import reader as recording
 from wftool.verify.monitor import IntervalSummary
 
 GAP_MIN_S = 0.2

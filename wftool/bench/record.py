@@ -13,7 +13,7 @@ Reading back is timed too, in frames/s: `replay` (the recorded events through th
 per-frame decoder and the monitor) and `recording_columns` (the events into NumPy columns,
 with OBC times; needs the analysis extra).
 
-The recorder's CPU counts its writer process (`wftool.verify.mcapprocess`) too: the CPU
+The recorder's CPU counts its writer process (`wftool.recording.mcapprocess`) too: the CPU
 of the children this process waited for is added to its own.
 
 Stalls: what recording costs the thread that reads and stamps. The ROS 2 recording's
@@ -37,18 +37,18 @@ from pathlib import Path
 from mcap.reader import make_reader
 
 from wftool.bench.decode import REALTIME_PACKETS_PER_S, STREAMS, write_capture
-from wftool.verify.mcapfile import McapFile
-from wftool.verify.mcapprocess import McapProcess
-from wftool.verify.monitor import StreamMonitor
-from wftool.verify.recording import (
+from wftool.recording.mcapfile import McapFile
+from wftool.recording.mcapprocess import McapProcess
+from wftool.recording.reader import (
     RECORD_FORMATS,
     Event,
     Recorder,
     recording_columns,
     replay_recording,
 )
-from wftool.verify.ros2 import HealthSampler
-from wftool.verify.rosbag import bag_file
+from wftool.recording.ros2msg import HealthSampler
+from wftool.recording.rosbag import bag_file
+from wftool.verify.monitor import StreamMonitor
 
 PACKET_BYTES = 118  # a 116-byte state packet, COBS-framed
 STALL_SPEED = 4.0

@@ -12,7 +12,7 @@ The SDK speaks the Foxglove WebSocket protocol under its current subprotocol nam
 `foxglove.sdk.v1`: the Foxglove app and Lichtblick (since late 2025) connect; clients that
 only offer the old name, `foxglove.websocket.v1`, are refused at the handshake.
 
-Messages are the recording's (`wftool.verify.ros2`, CDR with `ros2msg` schemas) plus the
+Messages are the recording's (`wftool.recording.ros2msg`, CDR with `ros2msg` schemas) plus the
 attitude in degrees, for plotting.
 """
 
@@ -24,8 +24,8 @@ from typing import Any
 from wftool.errors import UsageError
 from wftool.extras import require
 from wftool.fsp import SensorFrame, StatePacket
-from wftool.verify import ros2
-from wftool.verify.ros2 import (
+from wftool.recording import ros2msg
+from wftool.recording.ros2msg import (
     ATTITUDE_TOPIC,
     BATTERY_TOPIC,
     HEALTH_TOPIC,
@@ -43,15 +43,15 @@ DEFAULT_HOST = "127.0.0.1"
 BACKLOG = 1024
 """Messages queued per client before its oldest are dropped (the SDK's default)."""
 _PER_FRAME: tuple[tuple[str, MessageType, Callable[[SensorFrame, int], bytes]], ...] = (
-    (IMU_TOPIC, ros2.IMU, FrameEncoder.imu),
-    (ATTITUDE_TOPIC, ros2.ATTITUDE, FrameEncoder.attitude),
-    (RC_TOPIC, ros2.RC_CHANNELS, FrameEncoder.rc),
-    (RPM_TOPIC, ros2.MOTOR_RPM, FrameEncoder.rpm),
+    (IMU_TOPIC, ros2msg.IMU, FrameEncoder.imu),
+    (ATTITUDE_TOPIC, ros2msg.ATTITUDE, FrameEncoder.attitude),
+    (RC_TOPIC, ros2msg.RC_CHANNELS, FrameEncoder.rc),
+    (RPM_TOPIC, ros2msg.MOTOR_RPM, FrameEncoder.rpm),
 )
 TOPICS: dict[str, MessageType] = {
     **{topic: kind for topic, kind, _ in _PER_FRAME},
-    BATTERY_TOPIC: ros2.BATTERY_STATE,
-    HEALTH_TOPIC: ros2.STREAM_HEALTH,
+    BATTERY_TOPIC: ros2msg.BATTERY_STATE,
+    HEALTH_TOPIC: ros2msg.STREAM_HEALTH,
 }
 
 

@@ -24,17 +24,17 @@ from wftool.fc.msp import MspClient
 from wftool.fsp import DEFAULT_BAUDRATE, ESTIMATORS, SensorFrame, StatePacket
 from wftool.fsp.schedule import frame_rate_hz
 from wftool.interrupts import stop_on_signals
-from wftool.verify.criteria import Criteria, Verdict, judge
-from wftool.verify.foxglove import DEFAULT_HOST, FoxgloveLive
-from wftool.verify.live import LiveOptions, run_live
-from wftool.verify.monitor import StreamMonitor, StreamSummary
-from wftool.verify.recording import (
+from wftool.recording.reader import (
     RECORD_FORMATS,
     Recorder,
     RecordingReader,
     replay_recording,
     run_metadata,
 )
+from wftool.verify.criteria import Criteria, Verdict, judge
+from wftool.verify.foxglove import DEFAULT_HOST, FoxgloveLive
+from wftool.verify.live import LiveOptions, run_live
+from wftool.verify.monitor import StreamMonitor, StreamSummary
 from wftool.verify.uplink import UplinkTracker
 
 
@@ -97,7 +97,7 @@ class VerifySession:
 
     `uplink_rate_hz` sends the uplink pattern (None sends nothing); `criteria.uplink` is
     what judges it (`criteria_for(uplink=True)`). `record_path` (in `record_format`, see
-    `wftool.verify.recording`) and `csv_path` are created here, so a path that cannot be
+    `wftool.recording.reader`) and `csv_path` are created here, so a path that cannot be
     written fails before the run, and finished when the run ends, however it ends
     (`close()` them when the session is never run). `foxglove_port` serves the stream live
     to Foxglove on `foxglove_host` (port 0: any free one; `live_view.url` says which),

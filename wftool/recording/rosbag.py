@@ -27,8 +27,8 @@ read meanwhile (`McapFile.add_message(apart=True)`): reading a recording back de
 the raw bytes alone, and a file cut short holds the bytes of every frame it holds.
 Batching them saves a message (31 bytes of record, 16 of index) per read.
 `BagFile` is the container alone (directory, MCAP file, metadata.yaml) for any topics: the
-MSP baseline's recording (`wftool.verify.msp_recording`) is one too.
-Message definitions: `wftool.verify.ros2`. A message's log time is when the OBC read it
+MSP baseline's recording (`wftool.recording.msp`) is one too.
+Message definitions: `wftool.recording.ros2msg`. A message's log time is when the OBC read it
 (rosbag2's receive time: `ros2 bag play` paces by it); `header.stamp` is when the FC
 captured it. `ros2 bag play` publishes the standard types anywhere; the `wftool_msgs`
 topics need that package built on the ROS side, and are skipped with a warning otherwise.
@@ -45,9 +45,9 @@ from pathlib import Path
 from wftool import __version__
 from wftool.errors import RecordingError, UsageError
 from wftool.fsp import SensorFrame, StatePacket
-from wftool.verify import ros2
-from wftool.verify.mcapprocess import McapProcess
-from wftool.verify.ros2 import (
+from wftool.recording import ros2msg
+from wftool.recording.mcapprocess import McapProcess
+from wftool.recording.ros2msg import (
     BATTERY_TOPIC,
     EVENT_TOPIC,
     HEALTH_TOPIC,
@@ -62,12 +62,12 @@ from wftool.verify.ros2 import (
 )
 
 TOPICS: dict[str, MessageType] = {
-    IMU_TOPIC: ros2.IMU,
-    RPM_TOPIC: ros2.MOTOR_RPM,
-    RC_TOPIC: ros2.RC_CHANNELS,
-    BATTERY_TOPIC: ros2.BATTERY_STATE,
-    HEALTH_TOPIC: ros2.STREAM_HEALTH,
-    EVENT_TOPIC: ros2.STREAM_EVENTS,
+    IMU_TOPIC: ros2msg.IMU,
+    RPM_TOPIC: ros2msg.MOTOR_RPM,
+    RC_TOPIC: ros2msg.RC_CHANNELS,
+    BATTERY_TOPIC: ros2msg.BATTERY_STATE,
+    HEALTH_TOPIC: ros2msg.STREAM_HEALTH,
+    EVENT_TOPIC: ros2msg.STREAM_EVENTS,
 }
 METADATA_VERSION = 8
 EVENT_BATCH_S = 0.5
@@ -250,7 +250,7 @@ class RosbagWriter(BagFile):
         batch, self._event_batch = self._event_batch, []
         if batch:
             log_ns = self._encoder.stamp_ns(batch[0][1])
-            self._out.add_message(self._events, log_ns, ros2.encode_events(batch), apart=True)
+            self._out.add_message(self._events, log_ns, ros2msg.encode_events(batch), apart=True)
 
     def packets(self, packets: Sequence[StatePacket], health: StreamHealth | None = None) -> None:
         """The frames of `packets`, and `health` if it is a new snapshot."""

@@ -1,6 +1,6 @@
 """The MSP baseline's recording: what `wftool record msp` polled, as ROS 2 messages.
 
-The same container as the FSP stream's recording (`wftool.verify.rosbag.BagFile`: a rosbag2
+The same container as the FSP stream's recording (`wftool.recording.rosbag.BagFile`: a rosbag2
 directory, or one `.mcap` file) with the same raw log, on topics of its own:
 
 | topic | type | one per |
@@ -58,9 +58,9 @@ from wftool.fc.msp_poller import (
 )
 from wftool.link.transport import open_port
 from wftool.progress import Log, quiet
-from wftool.verify import ros2
-from wftool.verify.recording import RecordingReader
-from wftool.verify.rosbag import BagFile
+from wftool.recording import ros2msg
+from wftool.recording.reader import RecordingReader
+from wftool.recording.rosbag import BagFile
 
 IMU_TOPIC = "/msp/imu"
 ATTITUDE_TOPIC = "/msp/attitude"
@@ -68,12 +68,12 @@ RC_TOPIC = "/msp/rc"
 BATTERY_TOPIC = "/msp/battery"
 EVENT_TOPIC = "/msp/events"
 METADATA_NAME = "wftool.msp"
-TOPICS: dict[str, ros2.MessageType] = {
-    IMU_TOPIC: ros2.IMU,
-    ATTITUDE_TOPIC: ros2.ATTITUDE,
-    RC_TOPIC: ros2.MSP_RC,
-    BATTERY_TOPIC: ros2.BATTERY_STATE,
-    EVENT_TOPIC: ros2.STREAM_EVENT,
+TOPICS: dict[str, ros2msg.MessageType] = {
+    IMU_TOPIC: ros2msg.IMU,
+    ATTITUDE_TOPIC: ros2msg.ATTITUDE,
+    RC_TOPIC: ros2msg.MSP_RC,
+    BATTERY_TOPIC: ros2msg.BATTERY_STATE,
+    EVENT_TOPIC: ros2msg.STREAM_EVENT,
 }
 _DEG = math.pi / 180.0
 
@@ -103,7 +103,7 @@ class MspRecorder(BagFile):
     def __init__(self, path: Path, metadata: dict[str, str], acc_1g: int | None = None) -> None:
         self.wall_offset_ns = time.time_ns() - time.monotonic_ns()
         """Unix time minus OBC monotonic time, ns: how the stamps were made."""
-        self._acc_scale = ros2.STANDARD_GRAVITY / acc_1g if acc_1g else None
+        self._acc_scale = ros2msg.STANDARD_GRAVITY / acc_1g if acc_1g else None
         custom = {
             **metadata,
             "acc_1g": str(acc_1g or ""),
@@ -124,7 +124,7 @@ class MspRecorder(BagFile):
         return self.wall_offset_ns + int(t * 1e9)
 
     def _event(self, kind: str, t: float, data: bytes = b"") -> None:
-        self.add(self._events, self._stamp_ns(t), ros2.encode_event(kind, t, data))
+        self.add(self._events, self._stamp_ns(t), ros2msg.encode_event(kind, t, data))
 
     def connected(self, t: float) -> None:
         self._event("connected", t)
@@ -155,7 +155,7 @@ class MspRecorder(BagFile):
         imu = parse_raw_imu(payload)
         scale = self._acc_scale
         acc = None if scale is None else tuple(value * scale for value in imu.acc)
-        return ros2.imu_message(stamp_ns, [value * _DEG for value in imu.gyro], acc)
+        return ros2msg.imu_message(stamp_ns, [value * _DEG for value in imu.gyro], acc)
 
     def finish(self, result: PollResult) -> None:
         """Keep the poll's counts (in the MCAP metadata and metadata.yaml)."""
@@ -165,16 +165,18 @@ class MspRecorder(BagFile):
 
 def _attitude(stamp_ns: int, payload: bytes) -> bytes:
     attitude = parse_attitude(payload)
-    return ros2.attitude_message(stamp_ns, attitude.roll_deg, attitude.pitch_deg, attitude.yaw_deg)
+    return ros2msg.attitude_message(
+        stamp_ns, attitude.roll_deg, attitude.pitch_deg, attitude.yaw_deg
+    )
 
 
 def _rc(stamp_ns: int, payload: bytes) -> bytes:
-    return ros2.msp_rc_message(stamp_ns, parse_rc(payload))
+    return ros2msg.msp_rc_message(stamp_ns, parse_rc(payload))
 
 
 def _battery(stamp_ns: int, payload: bytes) -> bytes:
     analog = parse_analog(payload)
-    return ros2.battery_message(stamp_ns, analog.voltage_v, analog.current_a)
+    return ros2msg.battery_message(stamp_ns, analog.voltage_v, analog.current_a)
 
 
 def msp_replies(path: Path | RecordingReader) -> tuple[dict[str, str], list[list[MspReply]]]:

@@ -2,14 +2,14 @@
 
 Two MCAP formats, both read by `wftool replay`:
 
-- `ros2` (default): a rosbag2 directory that ROS 2 plays; see `wftool.verify.rosbag`.
+- `ros2` (default): a rosbag2 directory that ROS 2 plays; see `wftool.recording.rosbag`.
 - `json`: one MCAP file with two JSON-schema channels: `/fsp/frame`, one message per decoded
   frame stamped with its corrected OBC time, and `/fsp/events`, the raw byte chunks and
   connection and command events.
 
 Either way `/fsp/events` holds what the monitor saw, exactly, so `wftool replay` reproduces
 the run's statistics. Files are finished on close, also when the run is interrupted, and
-when the disk fills up (`wftool.verify.mcapfile`); one whose writer was killed outright is
+when the disk fills up (`wftool.recording.mcapfile`); one whose writer was killed outright is
 read as far as it goes (`RecordingReader`). No file is ever overwritten.
 """
 
@@ -38,12 +38,12 @@ from wftool import __version__
 from wftool.errors import UsageError
 from wftool.extras import require
 from wftool.fsp import ESTIMATORS, SensorFrame, StatePacket
-from wftool.verify import ros2
-from wftool.verify.mcapfile import Cut, LinearReader, indexed_messages
-from wftool.verify.mcapprocess import McapProcess
+from wftool.recording import ros2msg
+from wftool.recording.mcapfile import Cut, LinearReader, indexed_messages
+from wftool.recording.mcapprocess import McapProcess
+from wftool.recording.ros2msg import StreamHealth, decode_event, decode_events
+from wftool.recording.rosbag import RosbagWriter, bag_file
 from wftool.verify.monitor import StreamMonitor
-from wftool.verify.ros2 import StreamHealth, decode_event, decode_events
-from wftool.verify.rosbag import RosbagWriter, bag_file
 from wftool.verify.uplink import UplinkTracker
 
 if TYPE_CHECKING:
@@ -262,7 +262,7 @@ class RecordingReader:
     `UsageError` naming the file and what is wrong.
 
     The FSP stream's events and metadata by default; another recording's by `topic` and
-    `metadata_name` (the MSP baseline's, `wftool.verify.msp_recording`). A file without
+    `metadata_name` (the MSP baseline's, `wftool.recording.msp`). A file without
     `topic` is refused: it is a recording of another kind. `topic` None opens it only to
     look (`topics`, `metadata`; `recording_topics`)."""
 
@@ -419,16 +419,16 @@ class Reads:
     """The reads that began a new connection after the first (`decode_columns`)."""
 
 
-_EVENTS_CDR = "cdr: " + ros2.STREAM_EVENTS.name
-_EVENT_CDR = "cdr: " + ros2.STREAM_EVENT.name
-_BYTES = ros2.EVENT_KINDS.index("bytes")
+_EVENTS_CDR = "cdr: " + ros2msg.STREAM_EVENTS.name
+_EVENT_CDR = "cdr: " + ros2msg.STREAM_EVENT.name
+_BYTES = ros2msg.EVENT_KINDS.index("bytes")
 
 
 def _codec(channel: Channel, schema_name: str) -> str:
     """How the event messages of `channel` are encoded: JSON, or one of the CDR types."""
     if channel.message_encoding != "cdr":
         return channel.message_encoding
-    return _EVENTS_CDR if schema_name == ros2.STREAM_EVENTS.name else _EVENT_CDR
+    return _EVENTS_CDR if schema_name == ros2msg.STREAM_EVENTS.name else _EVENT_CDR
 
 
 def _connected_after(event: Event, connected: bool) -> bool:

@@ -1,6 +1,6 @@
 """ROS 2 messages of the FSP stream: `.msg` definitions and their CDR bytes.
 
-What the ROS 2 recording (`wftool.verify.rosbag`) and the live Foxglove view
+What the ROS 2 recording (`wftool.recording.rosbag`) and the live Foxglove view
 (`wftool.verify.foxglove`) publish, encoded once here:
 
 - `sensor_msgs/msg/Imu` per frame: `header.stamp` is the frame's capture time on the OBC

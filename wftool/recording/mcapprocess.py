@@ -54,7 +54,7 @@ from typing import Any, BinaryIO
 
 from wftool.errors import RecordingError, UsageError
 from wftool.interrupts import STOP_SIGNALS
-from wftool.verify.mcapfile import McapFile
+from wftool.recording.mcapfile import McapFile
 
 FLUSH_PERIOD_S = 0.02
 """A batch goes to the writer at least this often while messages come: what the caller's
@@ -83,7 +83,7 @@ _MESSAGE = struct.Struct("<BIHQQ")
 _MESSAGE_FIELDS = struct.Struct("<HQQ")
 _BOOT = (
     "import json, sys; sys.path[:] = json.loads(sys.argv.pop(1)); "
-    "from wftool.verify.mcapprocess import serve; sys.exit(serve(*sys.argv[1:]))"
+    "from wftool.recording.mcapprocess import serve; sys.exit(serve(*sys.argv[1:]))"
 )
 """The writer's start: with the caller's import path, so it runs the caller's wftool."""
 _MESSAGE_OP, _SCHEMA_OP, _CHANNEL_OP, _METADATA_OP, _FINISH_OP, _DISCARD_OP = range(6)
