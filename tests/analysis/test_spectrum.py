@@ -12,7 +12,7 @@ from tests.conftest import run_cli
 from tests.recording.test_reader import RecordingMonitor
 from wftool.fsp import SensorFrame, StatePacket
 from wftool.fsp.encoder import encode_state
-from wftool.recording.reader import Recorder
+from wftool.recording.recorder import Recorder
 
 np = pytest.importorskip("numpy", reason="needs the analysis extra (NumPy)")
 pytest.importorskip("scipy", reason="needs the analysis extra (SciPy)")

@@ -24,8 +24,9 @@ from wftool.fc.msp import Cmd, MspVersion, encode_request
 from wftool.fc.msp_poller import MspReply
 from wftool.fsp import SensorFrame, StatePacket
 from wftool.fsp.encoder import encode_state
+from wftool.recording.events import run_metadata
 from wftool.recording.msp import MspRecorder
-from wftool.recording.reader import Recorder, run_metadata
+from wftool.recording.recorder import Recorder
 from wftool.verify.session import replay
 
 np = pytest.importorskip("numpy", reason="needs the analysis extra (NumPy)")

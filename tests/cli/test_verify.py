@@ -29,7 +29,8 @@ from rosbags.typesys import Stores, get_typestore
 from tests.conftest import run_cli as run
 from tests.recording.test_rosbag import flight
 from tests.verify.fake_fc import PACKET_S, FakeFc
-from wftool.recording.reader import Event, Recorder
+from wftool.recording.events import Event
+from wftool.recording.recorder import Recorder
 
 NO_PORT = "socket://127.0.0.1:9"  # nothing listens: reached only if the checks before pass
 

@@ -32,7 +32,9 @@ from wftool.fsp import ClockEstimator, ClockState, StateDecoder, StatePacket, St
 from wftool.fsp.encoder import encode_state
 from wftool.fsp.framing import Rejection
 from wftool.fsp.packets import FRAME_LAYOUT
-from wftool.recording.reader import FRAME_TOPIC, Event, Recorder, recording_columns
+from wftool.recording.events import Event
+from wftool.recording.reader import recording_columns
+from wftool.recording.recorder import FRAME_TOPIC, Recorder
 
 np = pytest.importorskip("numpy", reason="the columnar decoder needs wftool[analysis]")
 from wftool.fsp import columns  # noqa: E402 - after the NumPy check

@@ -13,16 +13,11 @@ from tests.fsp.test_twoway import RC
 from tests.recording.data.make_recordings import RECORDINGS, events, run
 from tests.verify.test_monitor import feed_steady, feed_two_way
 from wftool.errors import UsageError
-from wftool.recording.reader import (
-    FRAME_TOPIC,
-    Event,
-    Recorder,
-    RecordingReader,
-    recording_columns,
-    replay_recording,
-    run_metadata,
-)
+from wftool.recording.events import Event, run_metadata
+from wftool.recording.reader import RecordingReader, recording_columns
+from wftool.recording.recorder import FRAME_TOPIC, Recorder
 from wftool.verify.monitor import StreamMonitor
+from wftool.verify.session import replay_recording
 
 DATA = Path(__file__).parent / "data"
 

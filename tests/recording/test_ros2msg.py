@@ -17,7 +17,8 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from tests.fsp.strategies import frames
 from wftool.fsp import SensorFrame
 from wftool.recording import ros2msg
-from wftool.recording.ros2msg import FrameEncoder, StreamHealth
+from wftool.recording.events import Event, StreamHealth
+from wftool.recording.ros2msg import FrameEncoder
 
 ALL_TYPES = (
     ros2msg.IMU,
@@ -154,7 +155,7 @@ def test_health(store):
     ],
 )
 def test_event_round_trip_and_rosbags_agree(store, kind, data, rc):
-    message = ros2msg.encode_event(kind, 1234.000001, data, rc)
+    message = ros2msg.encode_event(Event(kind, 1234.000001, data, rc))
     assert ros2msg.decode_event(message) == (kind, 1234.000001, data, rc)
     decoded = store.deserialize_cdr(message, "wftool_msgs/msg/StreamEvent")
     assert ros2msg.EVENT_KINDS[decoded.kind] == kind

@@ -29,10 +29,13 @@ from rosbags.typesys import Stores, get_typestore
 from wftool.errors import RecordingError, UsageError
 from wftool.fsp import SensorFrame, StatePacket
 from wftool.fsp.encoder import encode_state
-from wftool.recording.reader import Event, Recorder, read_recording, replay_recording
-from wftool.recording.ros2msg import HealthSampler, StreamHealth, decode_events
+from wftool.recording.events import Event, StreamHealth
+from wftool.recording.reader import read_recording
+from wftool.recording.recorder import Recorder
+from wftool.recording.ros2msg import decode_events
 from wftool.recording.rosbag import EVENT_BATCH_S
-from wftool.verify.monitor import StreamMonitor
+from wftool.verify.monitor import HealthSampler, StreamMonitor
+from wftool.verify.session import replay_recording
 
 PERIOD_US = 953
 PACKETS_PER_READ = 3
@@ -391,7 +394,7 @@ def test_full_tmpfs_ends_the_run_with_a_readable_bag(tmp_path: Path):
         from pathlib import Path
         from tests.recording.test_rosbag import flight, record
         from wftool.errors import RecordingError
-        from wftool.recording.reader import Recorder
+        from wftool.recording.recorder import Recorder
         recorder = Recorder(Path({str(mount)!r}) / "run", None, {{}})
         try:
             record(recorder, flight(40000))

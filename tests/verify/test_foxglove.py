@@ -24,7 +24,7 @@ from websockets.sync.client import ClientConnection, connect
 
 from tests.recording.test_rosbag import assert_imu_matches, decoded_frames, flight, stamp_of
 from wftool.errors import UsageError
-from wftool.recording.ros2msg import StreamHealth
+from wftool.recording.events import StreamHealth
 from wftool.verify.foxglove import TOPICS, FoxgloveLive
 
 SUBPROTOCOL = "foxglove.sdk.v1"

@@ -38,6 +38,7 @@ from wftool.fsp.columns import StateColumns, decode_columns
 from wftool.fsp.packets import SEQ_MODULUS
 from wftool.recording import msp as msp_recording
 from wftool.recording import reader as recording
+from wftool.recording.events import EVENT_TOPIC
 from wftool.verify.monitor import IntervalSummary
 
 GAP_MIN_S = 0.2
@@ -178,7 +179,7 @@ def read_samples(path: Path) -> Samples:
 
 def _recording_samples(path: Path) -> Samples:
     topics = recording.recording_topics(path)
-    if recording.EVENT_TOPIC in topics:
+    if EVENT_TOPIC in topics:
         reader = recording.RecordingReader(path)
         columns = recording.recording_columns(reader)
         if not len(columns):
@@ -209,7 +210,7 @@ def _recording_samples(path: Path) -> Samples:
     else:
         raise UsageError(
             f"{path} is an MCAP file but no wftool recording (it has no "
-            f"{recording.EVENT_TOPIC} or {msp_recording.EVENT_TOPIC})"
+            f"{EVENT_TOPIC} or {msp_recording.EVENT_TOPIC})"
         )
     if reader.cut is not None:
         samples.notes.append(f"the recording is {reader.cut.describe()}; analysed what it holds")

@@ -37,18 +37,14 @@ from pathlib import Path
 from mcap.reader import make_reader
 
 from wftool.bench.decode import REALTIME_PACKETS_PER_S, STREAMS, write_capture
+from wftool.recording.events import Event
 from wftool.recording.mcapfile import McapFile
 from wftool.recording.mcapprocess import McapProcess
-from wftool.recording.reader import (
-    RECORD_FORMATS,
-    Event,
-    Recorder,
-    recording_columns,
-    replay_recording,
-)
-from wftool.recording.ros2msg import HealthSampler
+from wftool.recording.reader import recording_columns
+from wftool.recording.recorder import RECORD_FORMATS, Recorder
 from wftool.recording.rosbag import bag_file
-from wftool.verify.monitor import StreamMonitor
+from wftool.verify.monitor import HealthSampler, StreamMonitor
+from wftool.verify.session import replay_recording
 
 PACKET_BYTES = 118  # a 116-byte state packet, COBS-framed
 STALL_SPEED = 4.0

@@ -16,7 +16,7 @@ from rich.live import Live
 from wftool.errors import UsageError
 from wftool.fsp import DEFAULT_BAUDRATE, ESTIMATORS
 from wftool.fsp.schedule import RATE_HZ_MAX, RATE_HZ_MIN
-from wftool.recording.reader import RECORD_FORMATS
+from wftool.recording.recorder import RECORD_FORMATS
 from wftool.verify.criteria import Criteria
 from wftool.verify.dashboard import render
 from wftool.verify.foxglove import DEFAULT_HOST as FOXGLOVE_HOST

@@ -59,6 +59,7 @@ from wftool.fc.msp_poller import (
 from wftool.link.transport import open_port
 from wftool.progress import Log, quiet
 from wftool.recording import ros2msg
+from wftool.recording.events import Event, EventKind
 from wftool.recording.reader import RecordingReader
 from wftool.recording.rosbag import BagFile
 
@@ -123,8 +124,8 @@ class MspRecorder(BagFile):
     def _stamp_ns(self, t: float) -> int:
         return self.wall_offset_ns + int(t * 1e9)
 
-    def _event(self, kind: str, t: float, data: bytes = b"") -> None:
-        self.add(self._events, self._stamp_ns(t), ros2msg.encode_event(kind, t, data))
+    def _event(self, kind: EventKind, t: float, data: bytes = b"") -> None:
+        self.add(self._events, self._stamp_ns(t), ros2msg.encode_event(Event(kind, t, data)))
 
     def connected(self, t: float) -> None:
         self._event("connected", t)

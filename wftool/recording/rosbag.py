@@ -46,10 +46,10 @@ from wftool import __version__
 from wftool.errors import RecordingError, UsageError
 from wftool.fsp import SensorFrame, StatePacket
 from wftool.recording import ros2msg
+from wftool.recording.events import EVENT_TOPIC, Event, StreamHealth
 from wftool.recording.mcapprocess import McapProcess
 from wftool.recording.ros2msg import (
     BATTERY_TOPIC,
-    EVENT_TOPIC,
     HEALTH_TOPIC,
     IMU_TOPIC,
     RC_TOPIC,
@@ -57,7 +57,6 @@ from wftool.recording.ros2msg import (
     SLOW_PERIOD_NS,
     FrameEncoder,
     MessageType,
-    StreamHealth,
     Throttle,
 )
 
@@ -231,25 +230,26 @@ class RosbagWriter(BagFile):
         self._rc_previous: tuple = ()  # (frame, stamp) of the latest frame seen
         self._last_health: StreamHealth | None = None
         self._log_ns = 0
-        self._event_batch: list[tuple[str, float, bytes, Sequence[int]]] = []
+        self._event_batch: list[Event] = []
 
     @property
     def wall_offset_ns(self) -> int:
         """Unix time minus OBC monotonic time, ns: how the stamps were made."""
         return self._encoder.wall_offset_ns
 
-    def event(self, kind: str, t: float, data: bytes = b"", rc: Sequence[int] = ()) -> None:
-        """A connect, disconnect, read or command at `t`, for `/fsp/events`."""
+    def event(self, event: Event) -> None:
+        """A connect, disconnect, read or command, for `/fsp/events`."""
+        t = event.t
         self._log_ns = self._encoder.stamp_ns(t)
         batch = self._event_batch
-        if batch and not 0 <= t - batch[0][1] < EVENT_BATCH_S:
+        if batch and not 0 <= t - batch[0].t < EVENT_BATCH_S:
             self._write_events()
-        self._event_batch.append((kind, t, data, rc))
+        self._event_batch.append(event)
 
     def _write_events(self) -> None:
         batch, self._event_batch = self._event_batch, []
         if batch:
-            log_ns = self._encoder.stamp_ns(batch[0][1])
+            log_ns = self._encoder.stamp_ns(batch[0].t)
             self._out.add_message(self._events, log_ns, ros2msg.encode_events(batch), apart=True)
 
     def packets(self, packets: Sequence[StatePacket], health: StreamHealth | None = None) -> None:

@@ -25,6 +25,7 @@ from wftool.errors import UsageError
 from wftool.extras import require
 from wftool.fsp import SensorFrame, StatePacket
 from wftool.recording import ros2msg
+from wftool.recording.events import StreamHealth
 from wftool.recording.ros2msg import (
     ATTITUDE_TOPIC,
     BATTERY_TOPIC,
@@ -34,7 +35,6 @@ from wftool.recording.ros2msg import (
     RPM_TOPIC,
     FrameEncoder,
     MessageType,
-    StreamHealth,
     Throttle,
 )
 

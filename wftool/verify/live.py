@@ -16,9 +16,9 @@ from typing import TYPE_CHECKING
 
 from wftool.errors import PortError, UsageError
 from wftool.fsp import FspPort, StatePacket
-from wftool.recording.reader import Event, Recorder
-from wftool.recording.ros2msg import HealthSampler
-from wftool.verify.monitor import StreamMonitor, StreamSummary
+from wftool.recording.events import Event
+from wftool.recording.recorder import Recorder
+from wftool.verify.monitor import HealthSampler, StreamMonitor, StreamSummary
 from wftool.verify.uplink import pattern_command
 
 if TYPE_CHECKING:

@@ -22,6 +22,8 @@ from wftool.fsp.encoder import U32_MASK
 from wftool.fsp.framing import DELIMITER, Rejection
 from wftool.fsp.packets import SEQ_MODULUS
 from wftool.fsp.twoway import RoundTrip, RoundTripRejection, TwoWayClockEstimator, TwoWayState
+from wftool.recording.events import Event, StreamHealth
+from wftool.recording.ros2msg import SLOW_PERIOD_NS
 from wftool.verify.uplink import UplinkStats, UplinkTracker
 
 RATE_WINDOW_S = 2.0
@@ -131,6 +133,26 @@ class StreamSummary:
         sent = self.frames + self.lost_frames
         return 100.0 * self.lost_frames / sent if sent else 0.0
 
+    def health(self, latest: StatePacket | None, t: float) -> StreamHealth:
+        """The counters as a `/fsp/health` snapshot taken at `t`, with the latest packet's
+        seq and epoch."""
+        return StreamHealth(
+            t=t,
+            seq=latest.seq if latest is not None else 0,
+            epoch=latest.epoch if latest is not None else 0,
+            e1=bool(self.e1),
+            clock_locked=self.clock is not None and self.clock.locked,
+            connected=self.connected,
+            packets=self.packets,
+            frames=self.frames,
+            lost_frames=self.lost_frames,
+            lost_packets=self.lost_packets,
+            fc_drops=self.fc_drops,
+            rejected_chunks=self.errors,
+            resets=self.resets,
+            reconnects=self.reconnects,
+        )
+
     def as_json(self) -> dict:
         data = asdict(self)
         data.update(errors=self.errors, loss_pct=self.loss_pct, outage_s=self.outage_s)
@@ -187,6 +209,20 @@ class StreamMonitor:
         self._recent: deque[tuple[float, int]] = deque()
 
     # -- events -----------------------------------------------------------------------------
+
+    def apply(self, event: Event, command: CommandPacket | None = None) -> list[StatePacket]:
+        """Take one event of a run, live or replayed; the packets a read completed.
+        `command`: the packet a live command event sent (see `command_sent`)."""
+        kind, t = event.kind, event.t
+        if kind == "bytes":
+            return self.feed(event.data, t)
+        if kind == "connected":
+            self.connected(t)
+        elif kind == "disconnected":
+            self.disconnected(t)
+        elif kind == "command":
+            self.command_sent(event.rc, t, command)
+        return []
 
     def connected(self, t: float) -> None:
         if self._started is None:
@@ -341,3 +377,20 @@ def _trips_rejected(decoder: StateDecoder) -> Counter[RoundTripRejection]:
     if isinstance(decoder.clock, TwoWayClockEstimator):
         counts.update(decoder.clock.rejected)
     return counts
+
+
+class HealthSampler:
+    """The run's `StreamHealth`, taken from the monitor at most every `period_s`: what the
+    live loop hands its sinks with each read."""
+
+    def __init__(self, monitor: StreamMonitor, period_s: float = SLOW_PERIOD_NS / 1e9) -> None:
+        self._monitor = monitor
+        self._period_s = period_s
+        self.latest: StreamHealth | None = None
+
+    def sample(self, packets: Sequence[StatePacket], t: float) -> StreamHealth | None:
+        """The latest snapshot; a new one if `packets` arrived and the period is up."""
+        latest = self.latest
+        if packets and (latest is None or not 0 <= t - latest.t < self._period_s):
+            self.latest = latest = self._monitor.summary(t).health(packets[-1], t)
+        return latest

@@ -24,13 +24,9 @@ from wftool.fc.msp import MspClient
 from wftool.fsp import DEFAULT_BAUDRATE, ESTIMATORS, SensorFrame, StatePacket
 from wftool.fsp.schedule import frame_rate_hz
 from wftool.interrupts import stop_on_signals
-from wftool.recording.reader import (
-    RECORD_FORMATS,
-    Recorder,
-    RecordingReader,
-    replay_recording,
-    run_metadata,
-)
+from wftool.recording.events import run_metadata
+from wftool.recording.reader import RecordingReader
+from wftool.recording.recorder import RECORD_FORMATS, Recorder
 from wftool.verify.criteria import Criteria, Verdict, judge
 from wftool.verify.foxglove import DEFAULT_HOST, FoxgloveLive
 from wftool.verify.live import LiveOptions, run_live
@@ -177,6 +173,25 @@ class VerifySession:
         """The result of what the run has seen so far (or of `summary`)."""
         summary = summary if summary is not None else self.monitor.summary()
         return VerifyResult(summary, self.judge(summary), self.monitor.latest)
+
+
+def replay_recording(
+    path: Path | RecordingReader, expected_rate_hz: float | None = None, clock: str | None = None
+) -> StreamMonitor:
+    """A monitor that has seen exactly what the recorded run saw; `clock` None takes the
+    recorded run's estimator."""
+    recording = path if isinstance(path, RecordingReader) else RecordingReader(path)
+    metadata = recording.metadata
+    if expected_rate_hz is None:
+        expected_rate_hz = recording.expected_rate_hz()
+    uplink = UplinkTracker() if metadata.get("uplink_rate_hz") else None
+    clock = clock or metadata.get("clock") or ESTIMATORS[0]
+    monitor = StreamMonitor(
+        metadata.get("port", str(recording.path)), expected_rate_hz, uplink=uplink, clock=clock
+    )
+    for event in recording.events():
+        monitor.apply(event)
+    return monitor
 
 
 def replay(

@@ -11,9 +11,9 @@ import sys
 from pathlib import Path
 
 from tests.recording.test_rosbag import flight
-from wftool.recording.reader import Event, Recorder
-from wftool.recording.ros2msg import HealthSampler
-from wftool.verify.monitor import StreamMonitor
+from wftool.recording.events import Event
+from wftool.recording.recorder import Recorder
+from wftool.verify.monitor import HealthSampler, StreamMonitor
 
 RECORDINGS = {"ros2-streamevent.mcap": "ros2", "json.mcap": "json"}
 PORT = "socket://sim:5762"
