@@ -182,10 +182,21 @@ class StateDecoder:
         """The newest packet in the books (None before the first): outliers are not."""
         return self._last
 
+    @property
+    def joined(self) -> dict[Rejection, int]:
+        """Of `stats.rejected`: the chunks cut by joining the stream mid-way, the one each
+        connection began in (`join`, `resync`; a new decoder is joining)."""
+        return self._deframer.joined
+
+    def join(self) -> None:
+        """A connection opens mid-stream: the bytes up to the next delimiter end a chunk
+        whose start was never seen."""
+        self._deframer.join()
+
     def resync(self) -> None:
         """The byte stream broke off and starts again (a reconnect): the partial chunk is
-        dropped. The FC's stream goes on, and so do its clock, its sequence and the books:
-        what was lost meanwhile is counted as any loss."""
+        dropped and the stream joined anew. The FC's stream goes on, and so do its clock,
+        its sequence and the books: what was lost meanwhile is counted as any loss."""
         self._deframer.resync()
 
     def feed(self, data: bytes, arrival_time: float | None = None) -> list[StatePacket]:

@@ -19,7 +19,7 @@ from dataclasses import asdict, dataclass, field
 from wftool.fsp import CommandPacket, SensorFrame, StateDecoder, StatePacket
 from wftool.fsp.clock import ESTIMATORS, ClockState
 from wftool.fsp.encoder import U32_MASK
-from wftool.fsp.framing import DELIMITER, Rejection
+from wftool.fsp.framing import Rejection
 from wftool.fsp.packets import SEQ_MODULUS
 from wftool.fsp.twoway import RoundTrip, RoundTripRejection, TwoWayClockEstimator, TwoWayState
 from wftool.recording.events import Event, StreamHealth
@@ -197,10 +197,6 @@ class StreamMonitor:
         self.round_trips = IntervalHistogram()
         self._commands = 0
         """Commands sent on this connection (a port opened with it numbers them from 0)."""
-        self._joined: Counter[Rejection] = Counter()
-        """Rejections of the chunk each connection began in (cut by joining mid-stream)."""
-        self._joining = False
-        """Connected, and no delimiter seen yet: the bytes belong to the cut chunk."""
         self._connected_at: float | None = None
         self._started: float | None = None
         self._now = 0.0
@@ -230,8 +226,8 @@ class StreamMonitor:
         elif self._connected_at is None:
             self._reconnects += 1
             self.decoder.resync()
+        self.decoder.join()  # only the chunk cut by the connection may be excused
         self._connected_at = t
-        self._joining = True
         self._commands = 0
         self._now = t
 
@@ -248,17 +244,7 @@ class StreamMonitor:
         self._now = t
         decoder = self.decoder
         before = decoder.last_packet
-        packets = []
-        if self._joining:  # only the chunk cut by the connection may be excused
-            head, delimiter, _ = data.partition(DELIMITER)
-            head += delimiter
-            rejected = Counter(decoder.stats.rejected)
-            packets = decoder.feed(head, t)
-            self._joined.update(Counter(decoder.stats.rejected) - rejected)
-            self._joining = not delimiter
-            data = data[len(head) :]
-        if data:
-            packets += decoder.feed(data, t)
+        packets = decoder.feed(data, t)
         if not packets:
             return packets
         previous = before
@@ -316,9 +302,8 @@ class StreamMonitor:
         if connected_at is not None:
             connected_s += now - connected_at
         duration_s = now - self._started if self._started is not None else 0.0
-        rejected = {
-            cause.value: totals.rejected[cause] - self._joined[cause] for cause in Rejection
-        }
+        joined = decoder.joined
+        rejected = {cause.value: totals.rejected[cause] - joined[cause] for cause in Rejection}
         rejected[OUTLIER] = totals.outliers
         fc = self.fc_intervals.summary()
         trips_rejected = _trips_rejected(decoder)
@@ -344,7 +329,7 @@ class StreamMonitor:
             fc_drops=totals.fc_drops,
             e1=totals.e1,
             rejected=rejected,
-            sync_rejected=sum(self._joined.values()),
+            sync_rejected=sum(joined.values()),
             resets=totals.resets,
             wraps=totals.wraps,
             reconnects=self._reconnects,
