@@ -43,7 +43,8 @@ from wftool.recording.mcapprocess import McapProcess
 from wftool.recording.reader import recording_columns
 from wftool.recording.recorder import RECORD_FORMATS, Recorder
 from wftool.recording.rosbag import bag_file
-from wftool.verify.monitor import HealthSampler, StreamMonitor
+from wftool.verify.live import Dispatcher
+from wftool.verify.monitor import StreamMonitor
 from wftool.verify.session import replay_recording
 
 PACKET_BYTES = 118  # a 116-byte state packet, COBS-framed
@@ -110,25 +111,16 @@ class RecordBenchResult:
 def _replay(capture: bytes, chunk_bytes: int, recorder: Recorder | None) -> tuple[float, int]:
     """CPU time of one replay (its writer process's included), and the frames decoded."""
     monitor = StreamMonitor("bench")
-    sampler = HealthSampler(monitor)
+    dispatch = Dispatcher(monitor, [recorder] if recorder is not None else []).event
     step = chunk_bytes / (REALTIME_PACKETS_PER_S * PACKET_BYTES)
     t = 1000.0
     start = _cpu_s()
-    monitor.connected(t)
-    if recorder is not None:
-        recorder.event(Event("connected", t))
+    dispatch(Event("connected", t))
     for offset in range(0, len(capture), chunk_bytes):
         t += step
-        data = capture[offset : offset + chunk_bytes]
-        if recorder is None:
-            monitor.feed(data, t)
-            continue
-        recorder.event(Event("bytes", t, data))
-        packets = monitor.feed(data, t)
-        recorder.packets(packets, sampler.sample(packets, t))
-    monitor.disconnected(t)
+        dispatch(Event("bytes", t, capture[offset : offset + chunk_bytes]))
+    dispatch(Event("disconnected", t))
     if recorder is not None:
-        recorder.event(Event("disconnected", t))
         recorder.close()
     return _cpu_s() - start, monitor.summary().frames
 

@@ -25,7 +25,7 @@ from wftool.errors import UsageError
 from wftool.extras import require
 from wftool.fsp import SensorFrame, StatePacket
 from wftool.recording import ros2msg
-from wftool.recording.events import StreamHealth
+from wftool.recording.events import Event, StreamHealth
 from wftool.recording.ros2msg import (
     ATTITUDE_TOPIC,
     BATTERY_TOPIC,
@@ -126,6 +126,9 @@ class FoxgloveLive:
                 self._health.log(
                     self._encoder.health(health), log_time=self._encoder.stamp_ns(health.t)
                 )
+
+    def event(self, event: Event) -> None:
+        """Nothing: a viewer sees the frames, not the reads they came in."""
 
     def packets(self, packets: Sequence[StatePacket], health: StreamHealth | None = None) -> None:
         """`publish` every frame of `packets`: the call verify's live loop makes per read."""

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Callable, Sequence
+from contextlib import ExitStack
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -24,7 +25,7 @@ from wftool.fc.msp import MspClient
 from wftool.fsp import DEFAULT_BAUDRATE, ESTIMATORS, SensorFrame, StatePacket
 from wftool.fsp.schedule import frame_rate_hz
 from wftool.interrupts import stop_on_signals
-from wftool.recording.events import run_metadata
+from wftool.recording.events import Event, Sink, StreamHealth, run_metadata
 from wftool.recording.reader import RecordingReader
 from wftool.recording.recorder import RECORD_FORMATS, Recorder
 from wftool.verify.criteria import Criteria, Verdict, judge
@@ -98,7 +99,8 @@ class VerifySession:
     (`close()` them when the session is never run). `foxglove_port` serves the stream live
     to Foxglove on `foxglove_host` (port 0: any free one; `live_view.url` says which),
     from now until `close()`. `clock` names the estimator of the frames' OBC times
-    (`wftool.fsp.ESTIMATORS`; None: the default).
+    (`wftool.fsp.ESTIMATORS`; None: the default). `sinks` get the run as the recording
+    does (`wftool.recording.events.Sink`; a ROS 2 node, say), and are closed with it.
     """
 
     def __init__(
@@ -116,6 +118,7 @@ class VerifySession:
         record_format: str = RECORD_FORMATS[0],
         foxglove_port: int | None = None,
         foxglove_host: str = DEFAULT_HOST,
+        sinks: Sequence[Sink] = (),
     ) -> None:
         clock = clock or ESTIMATORS[0]
         self.options = LiveOptions(url, baudrate, duration_s, uplink_rate_hz)
@@ -123,6 +126,7 @@ class VerifySession:
         uplink = UplinkTracker() if uplink_rate_hz is not None else None
         self.monitor = StreamMonitor(url, expected_rate_hz, uplink=uplink, clock=clock)
         self._recorder: Recorder | None = None
+        self._sinks = list(sinks)
         self.live_view: FoxgloveLive | None = None
         if foxglove_port is not None:  # first: a server closes without a trace, files do not
             self.live_view = FoxgloveLive(foxglove_port, foxglove_host)
@@ -145,26 +149,25 @@ class VerifySession:
         where it can stop (`wftool.interrupts`): the recording is finished, then the signal
         propagates (`KeyboardInterrupt`, `Terminated`) and `result()` judges what was seen."""
         stop = stop if stop is not None else threading.Event()
+        sinks: list[Sink] = [s for s in (self._recorder, self.live_view) if s is not None]
+        sinks += self._sinks
+        if on_packets is not None:
+            sinks.append(_PacketCallback(on_packets))
         with stop_on_signals(stop):
             try:
-                summary = run_live(
-                    self.options, self.monitor, self._recorder, on_refresh, stop,
-                    on_packets=on_packets, live_view=self.live_view,
-                )  # fmt: skip
+                summary = run_live(self.options, self.monitor, sinks, on_refresh, stop)
             finally:
                 self.close()
         return self.result(summary)
 
     def close(self) -> None:
-        """Stop the live view, then finish the recording files (if any)."""
-        live_view, recorder = self.live_view, self._recorder
-        self.live_view = self._recorder = None
-        try:
-            if live_view is not None:
-                live_view.close()
-        finally:
-            if recorder is not None:
-                recorder.close()
+        """Stop the live view, then finish the recording files, then close the other sinks
+        (each of them, whatever fails: the first failure is raised)."""
+        sinks = [s for s in (self.live_view, self._recorder) if s is not None] + self._sinks
+        self.live_view, self._recorder, self._sinks = None, None, []
+        with ExitStack() as closing:
+            for sink in reversed(sinks):  # an ExitStack closes the last pushed first
+                closing.callback(sink.close)
 
     def judge(self, summary: StreamSummary) -> Verdict:
         return judge(summary, self.criteria)
@@ -173,6 +176,24 @@ class VerifySession:
         """The result of what the run has seen so far (or of `summary`)."""
         summary = summary if summary is not None else self.monitor.summary()
         return VerifyResult(summary, self.judge(summary), self.monitor.latest)
+
+
+class _PacketCallback:
+    """`on_packets` as a sink: each read's packets, if any, and the time the read returned."""
+
+    def __init__(self, on_packets: Callable[[Sequence[StatePacket], float], None]) -> None:
+        self._on_packets = on_packets
+        self._t = 0.0
+
+    def event(self, event: Event) -> None:
+        self._t = event.t
+
+    def packets(self, packets: Sequence[StatePacket], health: StreamHealth | None) -> None:
+        if packets:
+            self._on_packets(packets, self._t)
+
+    def close(self) -> None:
+        pass
 
 
 def replay_recording(
