@@ -18,7 +18,6 @@ from collections.abc import Callable, Sequence
 from contextlib import ExitStack
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
 
 from wftool.errors import VerificationFailed
 from wftool.fc.msp import MspClient
@@ -28,7 +27,7 @@ from wftool.interrupts import stop_on_signals
 from wftool.recording.events import Event, Sink, StreamHealth, run_metadata
 from wftool.recording.reader import RecordingReader
 from wftool.recording.recorder import RECORD_FORMATS, Recorder
-from wftool.verify.criteria import Criteria, Verdict, judge
+from wftool.verify.criteria import Criteria, Verdict, criteria_for, judge
 from wftool.verify.foxglove import DEFAULT_HOST, FoxgloveLive
 from wftool.verify.live import LiveOptions, run_live
 from wftool.verify.monitor import StreamMonitor, StreamSummary
@@ -40,34 +39,6 @@ def fc_frame_rate_hz(msp_url: str, fsp_rate_hz: float) -> float:
     asked over MSP on `msp_url` (its MSP port, not the FSP port)."""
     with MspClient.open(msp_url) as msp:
         return frame_rate_hz(fsp_rate_hz, msp.pid_cycle_us())
-
-
-def criteria_for(
-    *,
-    uplink: bool = False,
-    min_rate_hz: float | None = None,
-    max_spread_ms: float | None = None,
-    max_loss_pct: float | None = None,
-    max_drops_pct: float | None = None,
-    max_errors: int | None = None,
-    max_outage_s: float | None = None,
-) -> Criteria:
-    """The criteria for a user's limits: a limit left at None takes the default. A board and
-    the virtual FC are judged alike."""
-    defaults = Criteria()
-
-    def pick(value: Any, default: Any) -> Any:
-        return default if value is None else value
-
-    return Criteria(
-        min_rate_hz=pick(min_rate_hz, defaults.min_rate_hz),
-        max_spread_ms=pick(max_spread_ms, defaults.max_spread_ms),
-        max_loss_pct=pick(max_loss_pct, defaults.max_loss_pct),
-        max_drops_pct=pick(max_drops_pct, defaults.max_drops_pct),
-        max_errors=pick(max_errors, defaults.max_errors),
-        max_outage_s=pick(max_outage_s, defaults.max_outage_s),
-        uplink=uplink,
-    )
 
 
 @dataclass(frozen=True)
