@@ -25,7 +25,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from wftool.bench.decode import FRAME_PERIOD_US
-from wftool.fsp.clock import U32, ClockEstimator, FcClock, make_estimator
+from wftool.fsp.clock import U32, ClockEstimator, FcClock
+from wftool.fsp.estimators import make_estimator
 
 PACKET_PERIOD_US = 2 * FRAME_PERIOD_US
 """Two frames per packet at 1049 Hz: ~525 packets/s (spec §7)."""

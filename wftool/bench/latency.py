@@ -28,7 +28,7 @@ from pathlib import Path
 
 from wftool.bench.clock import _p99_abs, _rms
 from wftool.fsp import FspReader, StateDecoder
-from wftool.fsp.clock import ESTIMATORS
+from wftool.fsp.estimators import ESTIMATORS
 from wftool.fsp.schedule import DEFAULT_RATE_HZ
 from wftool.fsp.twoway import RoundTrip, TwoWayClockEstimator
 from wftool.sitl.session import VirtualFcSession

@@ -280,7 +280,7 @@ def bench_clock(seconds: float, seeds: int, drift: float, repeat: int) -> None:
     identify); "absolute" is against the true capture instant (includes that delay).
     """
     from wftool.bench.clock import GOAL_RATIO, GOAL_RMS_S, MIN_DELAY_S, REFERENCE, run_clock_bench
-    from wftool.fsp.clock import ONE_WAY_ESTIMATORS
+    from wftool.fsp.estimators import ONE_WAY_ESTIMATORS
 
     result = run_clock_bench(ONE_WAY_ESTIMATORS, seeds=range(1, seeds + 1), seconds=seconds,
                              drift_ppm_per_min=drift, repeat=repeat)  # fmt: skip

@@ -6,8 +6,8 @@ Contract: spec/fsp.md. Where things live:
 - `framing`  — COBS framing and the length/version/CRC checks (`Deframer`, `Rejection`)
 - `decoder`  — `StateDecoder`: bytes in, timed packets out; loss, drops, resets counted
 - `encoder`  — wire bytes for both directions; `CommandSender` for the uplink
-- `clock`    — u32 unwrapping and OBC clock alignment (`make_estimator`: envelope, kalman,
-  twoway)
+- `clock`    — u32 unwrapping and OBC clock alignment (envelope, kalman)
+- `estimators` — the estimators by name (`make_estimator`: envelope, kalman, twoway)
 - `twoway`   — E2 time replies paired with commands; `TwoWayClockEstimator` (absolute time)
 - `schedule` — when the FC captures: `fsp_rate_hz`, the lockstep interval, the frame rate
 - `reader`   — `FspPort` (bytes in, commands out) over any pyserial URL; `FspReader` decodes
@@ -16,18 +16,16 @@ Contract: spec/fsp.md. Where things live:
 """
 
 from wftool.fsp.clock import (
-    ESTIMATORS,
-    ONE_WAY_ESTIMATORS,
     ClockEstimator,
     ClockState,
     EnvelopeClockEstimator,
     FcClock,
     KalmanClockEstimator,
     RoundTripObserver,
-    make_estimator,
 )
 from wftool.fsp.decoder import CommandDecoder, StateDecoder, StreamStats
 from wftool.fsp.encoder import CommandSender, encode_command, encode_state, encode_time_reply
+from wftool.fsp.estimators import ESTIMATORS, ONE_WAY_ESTIMATORS, make_estimator
 from wftool.fsp.framing import Rejection
 from wftool.fsp.packets import CommandPacket, SensorFrame, StatePacket, TimeReply
 from wftool.fsp.reader import DEFAULT_BAUDRATE, FspPort, FspReader

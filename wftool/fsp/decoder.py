@@ -29,8 +29,8 @@ from wftool.fsp.clock import (
     ClockState,
     FcClock,
     RoundTripObserver,
-    make_estimator,
 )
+from wftool.fsp.estimators import make_estimator
 from wftool.fsp.framing import (
     COMMAND_VERSIONS,
     STATE_E2_VERSIONS,
@@ -150,7 +150,7 @@ class StateDecoder:
     def __init__(
         self, clock: ClockEstimator | str | None = None, *, time_replies: bool | None = None
     ) -> None:
-        """`clock`: an estimator, or its name in `clock.ESTIMATORS` (default: "envelope").
+        """`clock`: an estimator, or its name in `estimators.ESTIMATORS` (default: "envelope").
         `time_replies`: take E2 time replies (default: when the clock takes round trips)."""
         self._fc_clock = FcClock()
         if clock is None:

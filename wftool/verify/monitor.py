@@ -17,8 +17,9 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 
 from wftool.fsp import CommandPacket, SensorFrame, StateDecoder, StatePacket
-from wftool.fsp.clock import ESTIMATORS, ClockState
+from wftool.fsp.clock import ClockState
 from wftool.fsp.encoder import U32_MASK
+from wftool.fsp.estimators import ESTIMATORS
 from wftool.fsp.framing import Rejection
 from wftool.fsp.packets import SEQ_MODULUS
 from wftool.fsp.twoway import RoundTrip, RoundTripRejection, TwoWayClockEstimator, TwoWayState
