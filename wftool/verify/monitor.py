@@ -21,7 +21,7 @@ from wftool.fsp.clock import ClockState
 from wftool.fsp.encoder import U32_MASK
 from wftool.fsp.estimators import ESTIMATORS
 from wftool.fsp.framing import Rejection
-from wftool.fsp.packets import SEQ_MODULUS
+from wftool.fsp.packets import SEQ_MODULUS, rc_values
 from wftool.fsp.twoway import RoundTrip, RoundTripRejection, TwoWayClockEstimator, TwoWayState
 from wftool.recording.events import Event, StreamHealth
 from wftool.recording.ros2msg import SLOW_PERIOD_NS
@@ -282,8 +282,8 @@ class StreamMonitor:
         if self._connected_at is None:
             return
         if command is None:
-            command = CommandPacket(tuple(rc), self._commands % SEQ_MODULUS,  # type: ignore[arg-type]
-                                    int(t * 1e6) & U32_MASK)  # fmt: skip
+            seq, tx_time_us = self._commands % SEQ_MODULUS, int(t * 1e6) & U32_MASK
+            command = CommandPacket(rc_values(rc), seq, tx_time_us)
         self._commands += 1
         round_trips = self.decoder.round_trips
         assert round_trips is not None
