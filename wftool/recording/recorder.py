@@ -157,7 +157,12 @@ class Recorder:
     def _frame(self, packet: StatePacket, frame: SensorFrame) -> None:
         obc_time = frame.obc_time + self._wall_offset if frame.obc_time is not None else None
         if self._writer is not None:
-            ns = int(obc_time * 1e9) if obc_time is not None else self._ns(packet.arrival_time)
+            if obc_time is not None:
+                ns = int(obc_time * 1e9)
+            elif packet.arrival_time is not None:
+                ns = self._ns(packet.arrival_time)
+            else:  # decoded without arrival times: stamped now, as the ROS 2 format does
+                ns = time.time_ns()
             message = {
                 "seq": packet.seq,
                 "epoch": packet.epoch,
