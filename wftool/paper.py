@@ -102,7 +102,7 @@ def run_timing(
         raise UsageError(f"cannot create {out_dir}: {exc.strerror or exc}") from None
     if board is not None:
         fc = _board(board, out_dir, fsp_rate_hz, serial_rate_hz, log)
-    else:
+    elif binary is not None:  # one of them, as checked above
         fc = _virtual_fc(binary, out_dir / "sitl", fsp_rate_hz, serial_rate_hz, log)
     with fc as (ports, expected_rate_hz):
         run = _record(ports, out_dir, duration_s, expected_rate_hz, serial_rate_hz, window, log)

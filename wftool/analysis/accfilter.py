@@ -26,6 +26,7 @@ import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from scipy import signal
@@ -115,7 +116,7 @@ class Evaluation:
     bands_hz: list[tuple[float, float]]
     motion_frequencies_hz: list[float]
     configs: list[ConfigResult]
-    m7_check: dict[str, object] | None
+    m7_check: dict[str, Any] | None
     flights: dict[int, Flight] = field(default_factory=dict, repr=False)
     filtered: dict[tuple[str, int], np.ndarray] = field(default_factory=dict, repr=False)
     """(config name, rate) -> the filtered raw acceleration (for Fig. 4)."""
@@ -282,7 +283,7 @@ def fixed_group_delay_ms(
     harness: HostHarness,
     settings: FilterSettings,
     sample_rate_hz: int,
-    motor_hz: Sequence[float],
+    motor_hz: Sequence[float] | np.ndarray,
     frequencies_hz: Sequence[float] = MOTION_FREQUENCIES_HZ,
     step_hz: float = 0.25,
 ) -> np.ndarray:
@@ -297,7 +298,7 @@ def sine_response(
     harness: HostHarness,
     settings: FilterSettings,
     sample_rate_hz: int,
-    motor_hz: Sequence[float],
+    motor_hz: Sequence[float] | np.ndarray,
     frequencies_hz: Sequence[float],
     seconds: float = 4.0,
 ) -> np.ndarray:
@@ -414,7 +415,9 @@ def m7_reference_check(m7: M7Harness) -> dict[str, object]:
     }
 
 
-def _run(harness: HostHarness, settings: FilterSettings, flight: Flight, acc: np.ndarray):
+def _run(
+    harness: HostHarness, settings: FilterSettings, flight: Flight, acc: np.ndarray
+) -> np.ndarray:
     host_filter = harness.filter(settings, flight.sample_rate_hz, flight.motor_hz.shape[1])
     return host_filter.run(flight.motor_hz, acc)
 

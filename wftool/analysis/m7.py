@@ -180,8 +180,8 @@ class M7Harness:
 
         for index, value in enumerate(args):
             self._uc.reg_write(UC_ARM_REG_R0 + index, value)
-        for index, value in enumerate(floats):
-            bits = struct.unpack("<I", struct.pack("<f", value))[0]
+        for index, number in enumerate(floats):
+            bits = struct.unpack("<I", struct.pack("<f", number))[0]
             self._uc.reg_write(UC_ARM_REG_S0 + index, bits)
         self._uc.reg_write(UC_ARM_REG_SP, _STACK_TOP)
         self._uc.reg_write(UC_ARM_REG_LR, _RETURN_ADDRESS | 1)

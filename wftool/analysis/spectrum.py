@@ -117,7 +117,8 @@ def write_series(path: Path, time_s: np.ndarray, motor_hz: np.ndarray, panels: l
     for panel in panels:
         arrays[f"acc_{panel.label}_g"] = np.asarray(panel.acc_g, dtype=np.float32)
     with open(path, "wb") as handle:
-        np.savez_compressed(handle, **arrays)
+        # numpy's stubs read the arrays' names as its own keywords (allow_pickle)
+        np.savez_compressed(handle, **arrays)  # type: ignore[arg-type]
 
 
 def _read_npz(path: Path) -> AccSeries:
@@ -244,6 +245,7 @@ def spectrogram(series: AccSeries, axis: str = "sum") -> Spectrogram:
                 mode="psd",
             )
             total = power if total is None else total + power
+        assert total is not None  # every axis mode has a channel
         powers.append(total)
     return Spectrogram(frequencies, times + series.time_s[0], np.stack(powers), axis)
 
@@ -311,6 +313,7 @@ def draw(series: AccSeries, spec: Spectrogram, out: Path) -> None:
         f"{OVERLAP:.0%} overlap, {series.sample_rate_hz:.0f} Hz) — {Path(series.source).name}",
         fontsize=10,
     )
+    assert image is not None  # a series has a panel
     figure.colorbar(image, ax=list(axes), label="PSD (dB re 1 g²/Hz)")
     try:
         figure.savefig(out, dpi=120)

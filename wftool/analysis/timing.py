@@ -26,7 +26,7 @@ import json
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Final
 
 import numpy as np
 
@@ -44,7 +44,7 @@ from wftool.verify.monitor import IntervalSummary
 GAP_MIN_S = 0.2
 GAP_INTERVALS = 50
 """An interval longer than this many expected intervals (and than `GAP_MIN_S`) is a gap."""
-PERCENTILE_METHOD = "lower"
+PERCENTILE_METHOD: Final = "lower"
 _MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
@@ -59,7 +59,7 @@ def interval_stats(deltas_us: np.ndarray) -> IntervalSummary:
     return IntervalSummary(int(deltas.size), mean, float(p1), float(median), float(p99))
 
 
-def stats_json(stats: IntervalSummary) -> dict[str, float]:
+def stats_json(stats: IntervalSummary) -> dict[str, float | None]:
     return {
         "intervals": stats.count,
         "mean_us": stats.mean_us,
@@ -378,8 +378,8 @@ def table_rows(series: list[TimingSeries], paper: bool = False) -> list[dict[str
             continue
         shown = [_published(figure) for figure in published.figures().values()]
         rate = _published(published.mean_us, lambda mean_us: 1e6 / mean_us)
-        values = (f"{published.protocol}: the paper", published.setup, "—", *shown, rate)
-        rows.append(dict(zip(COLUMNS, values)))
+        paper_row = (f"{published.protocol}: the paper", published.setup, "—", *shown, rate)
+        rows.append(dict(zip(COLUMNS, paper_row)))
     return rows
 
 

@@ -28,6 +28,7 @@ from pathlib import Path
 from wftool.errors import UsageError
 from wftool.fsp import SensorFrame, StateDecoder, StatePacket, StreamStats
 from wftool.fsp.encoder import encode_state
+from wftool.fsp.packets import rc_values
 
 REALTIME_PACKETS_PER_S = 525  # 1049 Hz of frames, two per packet (spec §7)
 FRAME_PERIOD_US = 953
@@ -120,10 +121,12 @@ class RealisticFlight:
         swing = 3000 * math.sin(2 * math.pi * 0.4 * t)  # the roll manoeuvre, felt by motors
         rpm = [round(18000 + swing * (-1) ** m + gauss(0, RPM_NOISE)) for m in range(4)]
         vbat = round(1620 - 0.05 * t + gauss(0, 0.7))
+        (ax, ay, az), (gx, gy, gz), (qw, qx, qy, qz) = acc, gyro, attitude
+        m1, m2, m3, m4 = rpm
         return SensorFrame(
-            t_us % 2**32, tuple(acc), ACC_1G, GYRO_SCALE, tuple(gyro), tuple(attitude),
-            tuple(self._rc), tuple(rpm), vbat,
-        )  # type: ignore[arg-type]  # fmt: skip
+            t_us % 2**32, (ax, ay, az), ACC_1G, GYRO_SCALE, (gx, gy, gz), (qw, qx, qy, qz),
+            rc_values(self._rc), (m1, m2, m3, m4), vbat,
+        )  # fmt: skip
 
 
 STREAMS = ("realistic", "sweeping")

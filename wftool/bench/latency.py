@@ -25,9 +25,10 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TypeVar
 
 from wftool.bench.clock import _p99_abs, _rms
-from wftool.fsp import FspReader, StateDecoder
+from wftool.fsp import CommandPacket, FspReader, StateDecoder
 from wftool.fsp.estimators import ESTIMATORS
 from wftool.fsp.schedule import DEFAULT_RATE_HZ
 from wftool.fsp.twoway import RoundTrip, TwoWayClockEstimator
@@ -97,12 +98,15 @@ class LatencyBenchResult:
     """Times the SITL fell more than 50 ms behind the host clock and re-anchored."""
 
 
+T = TypeVar("T")
+
+
 @dataclass
 class _Capture:
     """What the live run saw: its events in order, and each read's packets' FC times."""
 
-    events: list[tuple[str, float, object]] = field(default_factory=list)
-    """("bytes", read time, data) and ("sent", OBC stamp, (seq, tx_time_us))."""
+    events: list[tuple[float, bytes | CommandPacket]] = field(default_factory=list)
+    """(read time, the bytes read) and (OBC stamp, the command sent)."""
     reads: list[tuple[float, float, list[int], list[int]]] = field(default_factory=list)
     """(read time, decoded time, packet send FC times, frame FC times) per read."""
 
@@ -119,7 +123,7 @@ def _capture(
         while (t := now()) < end:
             if command_rate_hz and t >= next_command:
                 packet = reader.send_command(COMMAND, now=t)
-                capture.events.append(("sent", t, (packet.seq, packet.tx_time_us)))
+                capture.events.append((t, packet))
                 # a random phase: an OBC whose commands kept a fixed phase to the FC's FSP task
                 # (only a SITL, sharing the host's clock, does) would always wait as long for it
                 next_command = max(next_command + rng.uniform(0.5, 1.5) / command_rate_hz, t)
@@ -129,12 +133,18 @@ def _capture(
             read_at = now()
             packets = decoder.feed(data, read_at)
             decoded_at = now()
-            capture.events.append(("bytes", read_at, data))
+            capture.events.append((read_at, data))
             if packets:
-                sends = [p.time_us for p in packets]
-                frames = [f.time_us for p in packets for f in p.frames]
-                capture.reads.append((read_at, decoded_at, sends, frames))  # type: ignore[arg-type]
+                sends = [_decoded(p.time_us) for p in packets]
+                frames = [_decoded(f.time_us) for p in packets for f in p.frames]
+                capture.reads.append((read_at, decoded_at, sends, frames))
     return capture
+
+
+def _decoded(value: T | None) -> T:
+    """A time the decoder sets on every packet and frame it delivers (with arrival times)."""
+    assert value is not None
+    return value
 
 
 def _replay(
@@ -156,13 +166,12 @@ def _replay(
     covered = 0
     uncertainties: list[float] = []
     first = lock = math.nan
-    for kind, t, payload in capture.events:
-        if kind == "sent":
+    for t, payload in capture.events:
+        if isinstance(payload, CommandPacket):
             if matcher is not None:
-                seq, tx_time_us = payload  # type: ignore[misc]
-                matcher.sent(seq, tx_time_us, t)
+                matcher.sent(payload.seq, payload.tx_time_us, t)
             continue
-        packets = decoder.feed(payload, t)  # type: ignore[arg-type]
+        packets = decoder.feed(payload, t)
         if not packets:
             continue
         if first != first:
@@ -174,7 +183,7 @@ def _replay(
             lock = t - first
         for packet in packets:
             for frame in packet.frames:
-                error = frame.obc_time - true_obc(frame.time_us)  # type: ignore[operator]
+                error = _decoded(frame.obc_time) - true_obc(_decoded(frame.time_us))
                 errors.append(error)
                 if two_way is not None:
                     covered += abs(error) <= state.uncertainty_s

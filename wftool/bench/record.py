@@ -50,7 +50,10 @@ from wftool.verify.session import replay_recording
 PACKET_BYTES = 118  # a 116-byte state packet, COBS-framed
 STALL_SPEED = 4.0
 """The stall replay's pace, times real time (either writer keeps up with it)."""
-STALL_WRITERS = {"writer process": McapProcess, "in-process McapFile": McapFile}
+STALL_WRITERS: dict[str, type[McapProcess] | type[McapFile]] = {
+    "writer process": McapProcess,
+    "in-process McapFile": McapFile,
+}
 
 
 @dataclass(frozen=True)
@@ -137,6 +140,7 @@ def _reads(recording: Path) -> tuple[list[tuple[str, str, bytes, str, str]], lis
     with open(recording, "rb") as handle:
         reader = make_reader(handle)
         summary = reader.get_summary()
+        assert summary is not None  # wftool's writers end a file with its summary
         ids = sorted(summary.channels)
         channels = []
         for channel_id in ids:
@@ -187,7 +191,9 @@ def _stalls(
 def _stall_figures(name: str, stalls: list[float], path: Path) -> StallFigures:
     ordered = sorted(stalls)
     with open(path, "rb") as handle:
-        chunks = len(make_reader(handle).get_summary().chunk_indexes)
+        summary = make_reader(handle).get_summary()
+    assert summary is not None  # both writers end a file with its summary
+    chunks = len(summary.chunk_indexes)
     return StallFigures(
         name,
         len(ordered),
@@ -245,7 +251,8 @@ def run_record_bench(
                 sizes[name] = _size(path)
                 replayed, columns = _read_back(path, frames, numpy)
                 replay_rate[name] = max(replay_rate[name], replayed)
-                columns_rate[name] = None if columns is None else max(columns_rate[name], columns)
+                best = columns_rate[name] or 0.0
+                columns_rate[name] = None if columns is None else max(best, columns)
         channels, reads = _reads(bag_file(scratch / "run-ros2"))
         stalls: dict[str, StallFigures] = {}
         for run in range(repeat):

@@ -110,6 +110,7 @@ def bench_decode(minutes: float, chunk: int, tunnel: bool, repeat: int) -> None:
         "vs per-frame: the per-frame run that works out the same times"
     )
     stats = result.runs[PER_FRAME_ALIGNED][0].stats
+    assert stats is not None  # the per-frame runs count
     out.print(
         f"columnar and per-frame totals agree: {'yes' if result.agree else 'NO'} "
         f"({stats.packets:,} packets, {stats.errors} rejected, {stats.lost_frames} lost, "
@@ -369,14 +370,14 @@ def bench_record(seconds: float, chunk: int, repeat: int, streams: tuple[str, ..
         )
         for column in ("writer", "reads", "chunks", "worst ms", "P99.9 ms", "reads > 1 ms"):
             stalls.add_column(column, justify="left" if column == "writer" else "right")
-        for figures in result.stalls:
+        for stall in result.stalls:
             stalls.add_row(
-                figures.name,
-                f"{figures.reads:,}",
-                f"{figures.chunks}",
-                f"{1e3 * figures.worst_s:.2f}",
-                f"{1e3 * figures.p999_s:.2f}",
-                f"{figures.over_1ms}",
+                stall.name,
+                f"{stall.reads:,}",
+                f"{stall.chunks}",
+                f"{1e3 * stall.worst_s:.2f}",
+                f"{1e3 * stall.p999_s:.2f}",
+                f"{stall.over_1ms}",
             )
         out.print(stalls)
         process, in_process = result.stalls

@@ -26,10 +26,8 @@ import re
 import time
 from dataclasses import dataclass
 
-import serial
-
 from wftool.errors import CliCommandError, PortError, ProtocolError
-from wftool.link.transport import open_port, port_errors
+from wftool.link.transport import Port, open_port, port_errors
 
 PROMPT = b"\r\n# "
 SETTLE_S = 0.05
@@ -148,7 +146,7 @@ _CONSTRAINT_HEADS = {"Allowed range", "Allowed values", "Array length", "String 
 class CliSession:
     """The CLI on an open link. Enter with `enter()`; leave with `save()` or `exit()`."""
 
-    def __init__(self, link: serial.SerialBase, *, timeout: float = 5.0) -> None:
+    def __init__(self, link: Port, *, timeout: float = 5.0) -> None:
         self.link = link
         self.timeout = timeout
         self.url = link.port or "link"
@@ -311,7 +309,7 @@ class CliSession:
         self.link.close()
 
 
-def cli_is_open(link: serial.SerialBase) -> bool:
+def cli_is_open(link: Port) -> bool:
     """Whether the FC on LINK sits in its CLI (and so ignores MSP): an open CLI answers
     `REDRAW` with its prompt; MSP ignores it. Whatever was half typed is erased."""
     url = link.port or "link"

@@ -14,11 +14,9 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-import serial
-
 from wftool.errors import MspError
 from wftool.link.crc import DVB_S2_INIT, crc8
-from wftool.link.transport import open_port, port_errors
+from wftool.link.transport import Port, open_port, port_errors
 
 
 class MspVersion(enum.IntEnum):
@@ -163,7 +161,7 @@ class FrameReader:
         """The frames `data` completes, in order."""
         rx = self._rx
         rx += data
-        frames = []
+        frames: list[MspFrame] = []
         while True:
             try:
                 frame, used = decode_frame(bytes(rx))
@@ -284,7 +282,7 @@ class MspClient:
 
     def __init__(
         self,
-        link: serial.SerialBase,
+        link: Port,
         *,
         version: MspVersion = MspVersion.V2,
         timeout: float = 1.0,

@@ -45,11 +45,9 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
-import serial
-
 from wftool.errors import UsageError
 from wftool.fc.msp import Cmd, FrameReader, MspFrame, MspVersion, encode_request
-from wftool.link.transport import port_errors, read_within, selectable_fd
+from wftool.link.transport import Port, port_errors, read_within, selectable_fd
 
 DEFAULT_WINDOW = 4
 """Requests in flight at most: 36 bytes of MSP v2 requests (24 of v1), far below any FC
@@ -223,7 +221,7 @@ class MspPoller:
 
     def __init__(
         self,
-        link: serial.SerialBase,
+        link: Port,
         schedule: Sequence[PollRate] = PAPER_SCHEDULE,
         *,
         window: int = DEFAULT_WINDOW,

@@ -239,7 +239,7 @@ def decode_columns(
 
 def _block_columns(np: Any, positions: np.ndarray, records: np.ndarray) -> dict[str, Any]:
     """The raw columns of one block of records, copied while the block is in cache."""
-    names = records.dtype.names
+    names = records.dtype.names or ()  # a structured array: never None
     frames = records["frames"]
     columns = {name: np.ascontiguousarray(frames[name]) for name, _ in FRAME_LAYOUT}
     columns.update(

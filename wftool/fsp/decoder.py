@@ -297,7 +297,9 @@ class StateDecoder:
             if packet.drops != last.drops:
                 stats.fc_drops += (packet.drops - last.drops) % DROPS_MODULUS
         elif period_us > 0:
-            missing = round((base_us - last.frames[1].time_us) / period_us) - 1
+            last_us = last.frames[1].time_us
+            assert last_us is not None  # a packet in the books is timed
+            missing = round((base_us - last_us) / period_us) - 1
             stats.lost_frames += max(0, missing)
 
     def _provisional(self, packet: StatePacket, last: StatePacket) -> None:

@@ -139,7 +139,7 @@ class Deframer:
     def _check_crc(self, candidates: list[bytes]) -> list[bytes]:
         lengths = {len(p) for p in candidates}
         if len(lengths) > 1:  # a stream that mixes variants: check each length on its own
-            passing = set()
+            passing: set[bytes] = set()
             for length in lengths:
                 same = [p for p in candidates if len(p) == length]
                 passing.update(p for p, r in zip(same, crc8_residues(same, length)) if r == 0)

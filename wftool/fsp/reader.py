@@ -22,13 +22,11 @@ from collections.abc import Callable, Iterator, Sequence
 from types import TracebackType
 from typing import TypeVar
 
-import serial
-
 from wftool.errors import PortError
 from wftool.fsp.decoder import StateDecoder
 from wftool.fsp.encoder import CommandSender, encode_command
 from wftool.fsp.packets import CommandPacket, SensorFrame, StatePacket
-from wftool.link.transport import open_port, port_errors, read_within, selectable_fd
+from wftool.link.transport import Port, open_port, port_errors, read_within, selectable_fd
 
 DEFAULT_BAUDRATE = 2_000_000
 """The FSP baud rate wftool assumes unless told otherwise (`verify`, the virtual FC)."""
@@ -49,7 +47,7 @@ class FspPort:
         self.baudrate = baudrate
         self._now = now
         self._sender = CommandSender(now)
-        self._port: serial.SerialBase | None = None
+        self._port: Port | None = None
         self._fd: int | None = None
 
     def open(self: _Port) -> _Port:
@@ -75,7 +73,7 @@ class FspPort:
         self.close()
 
     @property
-    def port(self) -> serial.SerialBase:
+    def port(self) -> Port:
         if self._port is None:
             raise PortError(f"{self.url} is not open")
         return self._port

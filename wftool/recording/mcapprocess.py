@@ -50,7 +50,7 @@ import time
 from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import IO, Any
 
 from wftool.errors import RecordingError, UsageError
 from wftool.interrupts import STOP_SIGNALS
@@ -134,7 +134,8 @@ class McapProcess:
             )
         except OSError as exc:
             raise UsageError(f"cannot start the recording's writer: {exc}") from None
-        self._input: BinaryIO = self._process.stdin
+        assert self._process.stdin is not None and self._process.stdout is not None  # pipes
+        self._input: IO[bytes] = self._process.stdin
         _grow_pipe(self._input.fileno())
         self._listener = threading.Thread(
             target=self._listen, name=f"mcap writer {path.name}", daemon=True
@@ -217,17 +218,18 @@ class McapProcess:
         self._flush()
 
     def _flush(self) -> None:
-        cut_point = self.before_chunk is None
+        before_chunk = self.before_chunk
+        cut_point = before_chunk is None
         now = time.monotonic()
         due = (
             now >= self._cut_due
             or self._since_cut >= CUT_BYTES
             or self._log_time - self._cut_log_time >= CUT_PERIOD_S * 1e9
         )
-        if not cut_point and not self._flushing and due:
+        if before_chunk is not None and not self._flushing and due:
             self._flushing = True
             try:
-                self.before_chunk()
+                before_chunk()
             finally:
                 self._flushing = False
             self._cut_due = now + CUT_PERIOD_S
@@ -293,7 +295,9 @@ class McapProcess:
         """The writer's answers, in a thread that waits on them (holding no GIL meanwhile):
         ids for the setup, and the outcome at the end, which may come at any time."""
         last: dict[str, Any] | None = None
-        for line in self._process.stdout:
+        replies = self._process.stdout
+        assert replies is not None  # a pipe
+        for line in replies:
             try:
                 last = json.loads(line)
             except ValueError:

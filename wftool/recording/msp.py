@@ -32,7 +32,7 @@ import json
 import math
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from wftool import __version__
@@ -114,7 +114,7 @@ class MspRecorder(BagFile):
         super().__init__(path, TOPICS, METADATA_NAME, custom)
         ids = self.channels
         self._events = ids[EVENT_TOPIC]
-        self._sensors = {
+        self._sensors: dict[int, tuple[int, Callable[[int, bytes], bytes]]] = {
             Cmd.RAW_IMU: (ids[IMU_TOPIC], self._imu),
             Cmd.ATTITUDE: (ids[ATTITUDE_TOPIC], _attitude),
             Cmd.RC: (ids[RC_TOPIC], _rc),

@@ -118,11 +118,11 @@ class RecordingReader:
                 if record.name == self.metadata_name:
                     metadata = dict(record.metadata)
             return metadata
-        for record in LinearReader(self._handle).records():  # written before any message
-            if isinstance(record, Message):
+        for found in LinearReader(self._handle).records():  # written before any message
+            if isinstance(found, Message):
                 break
-            if isinstance(record, Metadata) and record.name == self.metadata_name:
-                metadata = dict(record.metadata)
+            if isinstance(found, Metadata) and found.name == self.metadata_name:
+                metadata = dict(found.metadata)
         return metadata
 
     def events(self) -> Iterator[Event]:
@@ -176,7 +176,8 @@ class RecordingReader:
 
     def _payloads(self) -> Iterator[tuple[str, bytes]]:
         """(codec, data) of each event message: through the indexes if the file has them."""
-        handle = self._handle
+        handle, topic = self._handle, self.topic
+        assert topic is not None, "a recording opened only to look has no events to read"
         if not self._finished:
             linear = LinearReader(handle)
             schemas: dict[int, str] = {}
@@ -188,23 +189,21 @@ class RecordingReader:
                     channels[record.id] = record
                 elif isinstance(record, Message):
                     channel = channels.get(record.channel_id)
-                    if channel is not None and channel.topic == self.topic:
+                    if channel is not None and channel.topic == topic:
                         yield _codec(channel, schemas.get(channel.schema_id, "")), record.data
             self.cut = linear.cut
             return
         reader = self._reader
         summary = reader.get_summary()
-        indexed = indexed_messages(handle, summary, self.topic)
-        if indexed is not None:
+        indexed = indexed_messages(handle, summary, topic)
+        if indexed is not None and summary is not None:
             channel, messages = indexed
             schema = summary.schemas.get(channel.schema_id)
             codec = _codec(channel, schema.name if schema is not None else "")
             for data in messages:
                 yield codec, data
             return
-        for schema, channel, message in reader.iter_messages(
-            topics=[self.topic], log_time_order=False
-        ):
+        for schema, channel, message in reader.iter_messages(topics=[topic], log_time_order=False):
             yield _codec(channel, schema.name if schema is not None else ""), message.data
 
 

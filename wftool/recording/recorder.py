@@ -108,10 +108,10 @@ class Recorder:
             if mcap_path is not None and record_format == "ros2":
                 self._bag = RosbagWriter(mcap_path, METADATA_NAME, metadata)
             elif mcap_path is not None:
-                self._writer = McapProcess(mcap_path, "", f"wftool {__version__}")
-                self._writer.add_metadata(METADATA_NAME, {**metadata, "wftool": __version__})
-                self._frame_channel = self._channel(FRAME_TOPIC, FRAME_SCHEMA)
-                self._event_channel = self._channel(EVENT_TOPIC, EVENT_SCHEMA)
+                self._writer = writer = McapProcess(mcap_path, "", f"wftool {__version__}")
+                writer.add_metadata(METADATA_NAME, {**metadata, "wftool": __version__})
+                self._frame_channel = _channel(writer, FRAME_TOPIC, FRAME_SCHEMA)
+                self._event_channel = _channel(writer, EVENT_TOPIC, EVENT_SCHEMA)
             if csv_path is not None:
                 self._csv_file = open(csv_path, "x", newline="")  # noqa: SIM115 - closed in close()
                 self._csv = csv.writer(self._csv_file)
@@ -119,12 +119,6 @@ class Recorder:
         except OSError as exc:
             self.close()
             raise UsageError(f"cannot write the recording: {exc}") from None
-
-    def _channel(self, topic: str, schema: dict[str, Any]) -> int:
-        schema_id = self._writer.register_schema(
-            name=schema["title"], encoding="jsonschema", data=json.dumps(schema).encode()
-        )
-        return self._writer.register_channel(topic, message_encoding="json", schema_id=schema_id)
 
     def _ns(self, t: float) -> int:
         return int((t + self._wall_offset) * 1e9)
@@ -210,3 +204,10 @@ class Recorder:
 
     def __exit__(self, *exc_info: object) -> None:
         self.close()
+
+
+def _channel(writer: McapProcess, topic: str, schema: dict[str, Any]) -> int:
+    schema_id = writer.register_schema(
+        name=schema["title"], encoding="jsonschema", data=json.dumps(schema).encode()
+    )
+    return writer.register_channel(topic, message_encoding="json", schema_id=schema_id)

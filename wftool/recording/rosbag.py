@@ -136,9 +136,16 @@ class BagFile:
                 raise
             raise UsageError(f"cannot write the recording: {exc}") from None
 
+    @property
+    def _writer(self) -> McapProcess:
+        """The writer process, while the recording is open."""
+        if self._out is None:
+            raise RuntimeError(f"the recording {self.mcap_path} is closed")
+        return self._out
+
     def add(self, channel: int, log_ns: int, data: bytes) -> None:
         """One message on `channel` (an id of `channels`), logged at `log_ns`."""
-        self._out.add_message(channel, log_ns, data)
+        self._writer.add_message(channel, log_ns, data)
 
     def __enter__(self) -> BagFile:
         return self
@@ -204,7 +211,7 @@ class BagFile:
         if self.metadata_path is not None:
             for path in (self.metadata_path, self.metadata_path.with_suffix(".yaml.tmp")):
                 path.unlink(missing_ok=True)
-        if created:
+        if created and self.directory is not None:
             self.directory.rmdir()
 
 
@@ -219,7 +226,7 @@ class RosbagWriter(BagFile):
             "wall_offset_ns": str(self._encoder.wall_offset_ns),  # Unix minus OBC monotonic time
         }
         super().__init__(path, TOPICS, metadata_name, custom)
-        self._out.before_chunk = self._write_events  # a chunk's frames bring their bytes
+        self._writer.before_chunk = self._write_events  # a chunk's frames bring their bytes
         ids = self.channels
         self._imu, self._rpm, self._rc = ids[IMU_TOPIC], ids[RPM_TOPIC], ids[RC_TOPIC]
         self._battery, self._health = ids[BATTERY_TOPIC], ids[HEALTH_TOPIC]
@@ -250,11 +257,11 @@ class RosbagWriter(BagFile):
         batch, self._event_batch = self._event_batch, []
         if batch:
             log_ns = self._encoder.stamp_ns(batch[0].t)
-            self._out.add_message(self._events, log_ns, ros2msg.encode_events(batch), apart=True)
+            self._writer.add_message(self._events, log_ns, ros2msg.encode_events(batch), apart=True)
 
     def packets(self, packets: Sequence[StatePacket], health: StreamHealth | None = None) -> None:
         """The frames of `packets`, and `health` if it is a new snapshot."""
-        add, encoder = self._out.add_message, self._encoder
+        add, encoder = self._writer.add_message, self._encoder
         imu_id, rpm_id = self._imu, self._rpm
         imu, rpm = encoder.imu, encoder.rpm
         log_ns = self._log_ns
@@ -277,7 +284,7 @@ class RosbagWriter(BagFile):
             add(self._health, log_ns, encoder.health(health))
 
     def _rc_message(self, frame: SensorFrame, stamp: int, log_ns: int, rc: tuple) -> None:
-        add, encode = self._out.add_message, self._encoder.rc
+        add, encode = self._writer.add_message, self._encoder.rc
         if rc != self._rc_sent and self._rc_previous:
             previous, previous_stamp = self._rc_previous
             if previous_stamp != self._rc_sent_ns:  # the old value's last frame: a step

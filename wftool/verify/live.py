@@ -118,12 +118,13 @@ class _LiveRun:
                 t = self._now()
                 if t >= end or (stop is not None and stop.is_set()):
                     break
-                if self._port is None:
+                port = self._port
+                if port is None:
                     connected = self._connect(t, end)
                     if connected is None:
                         continue
-                    t = connected
-                t = self._exchange(self._port, t)
+                    t, port = connected
+                t = self._exchange(port, t)
                 if on_refresh is not None and t >= next_refresh:
                     on_refresh(self._monitor.summary(t))
                     next_refresh = t + REFRESH_S
@@ -133,8 +134,9 @@ class _LiveRun:
                 self._drop(t)
         return self._monitor.summary(t)
 
-    def _connect(self, t: float, end: float) -> float | None:
-        """Open the port if its retry is due: the time it opened; None while it cannot."""
+    def _connect(self, t: float, end: float) -> tuple[float, FspPort] | None:
+        """Open the port if its retry is due: the time it opened, and it; None while it
+        cannot be."""
         if t < self._retry_at:
             time.sleep(min(self._retry_at - t, end - t, READ_TIMEOUT_S))
             return None
@@ -151,7 +153,7 @@ class _LiveRun:
         t = self._now()
         self._emit(Event("connected", t))
         self._backoff = BACKOFF_FIRST_S
-        return t
+        return t, port
 
     def _exchange(self, port: FspPort, t: float) -> float:
         """One read, and the command that is due; the time the read returned (`t` if the

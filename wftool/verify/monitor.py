@@ -249,6 +249,7 @@ class StreamMonitor:
         if not packets:
             return packets
         previous = before
+        previous_us = before.frames[1].time_us if before is not None else None
         last_arrival = before.arrival_time if before is not None else None
         for packet in packets:
             if last_arrival is not None:
@@ -256,11 +257,12 @@ class StreamMonitor:
             last_arrival = t
             if packet.outlier:
                 continue
-            first, second = packet.frames
-            if previous is not None and _contiguous(previous, packet):
-                self.fc_intervals.add(first.time_us - previous.frames[1].time_us)
-            self.fc_intervals.add(second.time_us - first.time_us)
-            previous = packet
+            first_us, second_us = packet.frames[0].time_us, packet.frames[1].time_us
+            assert first_us is not None and second_us is not None  # the decoder timed them
+            if previous is not None and previous_us is not None and _contiguous(previous, packet):
+                self.fc_intervals.add(first_us - previous_us)
+            self.fc_intervals.add(second_us - first_us)
+            previous, previous_us = packet, second_us
             if self.uplink is not None:
                 self.uplink.observe(packet, t)
         if previous is not None:
