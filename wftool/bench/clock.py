@@ -247,7 +247,7 @@ class ModelSummary:
 
 GOAL_RMS_S = 50e-6
 GOAL_RATIO = 10.0
-"""The goal of issue 10: envelope RMS ≤ 50 µs and ≤ 1/10 of the reference's, on every model."""
+"""The envelope estimator's goal: RMS ≤ 50 µs and ≤ 1/10 of the reference's, on every model."""
 REFERENCE = "kalman"
 
 

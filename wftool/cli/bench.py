@@ -19,7 +19,7 @@ from wftool.verify.monitor import IntervalSummary
 
 out = Console(highlight=False, width=None if sys.stdout.isatty() else 200)
 ROS2_BYTES_PER_FRAME_GOAL = 94.0
-"""Issue 13's goal for a ROS 2 recording (what the JSON format measured when it was set)."""
+"""The size goal of a ROS 2 recording: what the JSON format measured when it was set."""
 
 
 @click.group("bench")
@@ -387,7 +387,7 @@ def bench_record(seconds: float, chunk: int, repeat: int, streams: tuple[str, ..
             f"({in_process.chunks} chunks); target: no chunk stalls the reading thread"
         )
     out.print(
-        f"targets (issue 13): ROS 2 <= {ROS2_BYTES_PER_FRAME_GOAL:g} B/frame and no larger "
+        f"targets: ROS 2 <= {ROS2_BYTES_PER_FRAME_GOAL:g} B/frame and no larger "
         "than JSON; recording <= 5 % of one core at 1 kHz"
     )
 
