@@ -1,21 +1,6 @@
-"""The accelerometer RPM filter, quantified: attenuation, motion delay and CPU cost.
-
-Each filter configuration flies the synthetic flight (`flight`) through the compiled
-firmware code (`harness`) at each sample rate, part by part (the filter is linear):
-
-- attenuation of each harmonic against RPM: output over input power of that harmonic's
-  vibration, per band of the mean motor fundamental;
-- broadband vibration reduction: the same for all vibration and sensor noise together;
-- what an estimator feels over 1–50 Hz: gain, phase and group delay of the motion band,
-  from its cross-spectrum with the filter's output (the notches move during the flight,
-  so this is the effective response), see `motion_response`;
-- CPU cost on the host: wall time of the firmware's two functions over the whole flight,
-  median of repeated runs, and as a ratio to biquadFilterApply() timed in the same run;
-- CPU cost on the SPEEDYBEEF7V3: instructions and estimated cycles per sample on the
-  emulated Cortex-M7 (`m7`), with the emulated output checked against the host's.
-
-`sine_response` measures the response with the notches held at fixed frequencies, by
-sine probes through the same code (the tests compare it with the coefficients' theory).
+"""`wftool analyze accfilter`: the accelerometer RPM filter quantified with the firmware's own
+code (attenuation, motion delay, CPU cost on the host and the Cortex-M7), its report and
+Fig. 4's series (docs/analysis.md).
 """
 
 from __future__ import annotations
@@ -159,7 +144,7 @@ def evaluate(
     provenance: dict[str, object] | None = None,
     progress: Callable[[str], None] = lambda message: None,
 ) -> Evaluation:
-    """Fly every configuration at every rate; see the module docstring for the figures."""
+    """Fly every configuration at every rate; the figures: docs/analysis.md."""
     bands = fundamental_bands(spec)
     flights = {rate: synthesize(spec, rate) for rate in rates}
     evaluation = Evaluation(

@@ -1,23 +1,6 @@
-"""Table 1 and Figs. 2–3: how regularly samples reach the OBC, FSP against the MSP baseline.
-
-Per recording, the intervals between consecutive samples, on the best clock each has:
-
-- FSP (a `verify --record` recording, or a raw capture of the FSP port's bytes): the FC's
-  capture times of consecutive frames (`time_us`, from the columnar decoder). They are the
-  FC's own timestamps, sent with the samples.
-- MSP (a `wftool record msp` recording): the reception times of consecutive MSP_RAW_IMU
-  replies on the OBC clock, which is all stock MSP gives.
-
-Statistics, in µs: the expected interval (FSP: the rate `fsp_rate_hz` gives at the FC's
-PID looptime, as the recording keeps it; MSP: the rate the IMU was polled at), mean, median,
-P1, P99 and the P99 − P1 spread. Percentiles are NumPy's "lower" method, a value that
-occurred, the rule of `verify`'s interval histograms, so both agree on the same run.
-
-**Segments.** A recording is cut at each reconnection, each FC reset (FSP epochs) and each
-gap: an interval longer than max(`GAP_MIN_S`, `GAP_INTERVALS` × the expected interval, or
-the median without one). An interval across a cut is not one between samples of one
-stream. The table row is the **longest segment**, and says so; the JSON lists every segment
-with its own statistics.
+"""Table 1 and Figs. 2–3: how regularly samples reach the OBC, FSP (the FC's capture times)
+against the MSP baseline (reception times), per recording and its longest segment
+(docs/analysis.md).
 """
 
 from __future__ import annotations

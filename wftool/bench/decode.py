@@ -1,14 +1,5 @@
-"""Decoder throughput: bytes in → frames out on one core, and memory over a long replay.
-
-The stream is a synthetic flight (E1 on, moving values) written once to a capture file;
-each replay reads that file in chunks, as `wftool replay` or an OBC reading a UART would,
-and feeds them with real-time arrival stamps. Reading, `StateDecoder.feed` and walking
-the frames are timed. Memory is `tracemalloc`'s peak, in runs of their own.
-
-The columnar path (`fsp.columns`) decodes the same file, with the same reads and stamps,
-into arrays, and is checked (untimed) to hold exactly the per-frame decoder's FC and OBC
-times; the reference from outside is pymavlink parsing a stream of as many `HIGHRES_IMU`
-messages (one IMU sample each) made by its own encoder.
+"""`wftool bench decode`: decoder throughput (bytes in, frames out, on one core) and memory
+over a long replay, per-frame and columnar, against pymavlink (docs/bench.md).
 """
 
 from __future__ import annotations

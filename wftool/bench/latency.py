@@ -1,18 +1,5 @@
-"""True clock error and true latency on the virtual FC, against the SITL's own clock.
-
-The patched SITL logs the true FC→host mapping (`wftool.sitl.truth`), and the host's
-CLOCK_MONOTONIC is the OBC clock here, so every FC time has a known true OBC instant. The
-bench streams from a fresh virtual FC for the given time with a real reader and decoder —
-sending commands at `command_rate_hz` and, with `time_reply`, having the FC answer them — and
-measures:
-
-- the true one-way latency: from a frame's true sample instant, and from its packet's true
-  send instant, to the decoded frame being available (right after `feed` returns);
-- each clock estimator's true error, replaying exactly the bytes and commands of the run
-  through a decoder per estimator: every frame's `obc_time` against its true sample instant
-  (absolute), and for one-way estimators also against the instant plus the true minimum
-  delay (what one-way timing can find, spec §8); the two-way estimator's share of frames
-  whose true error lies within the uncertainty it reports.
+"""`wftool bench latency`: true clock error and true latency on the virtual FC, judged against
+the SITL's own clock (`wftool.sitl.truth`; docs/bench.md).
 """
 
 from __future__ import annotations
@@ -208,7 +195,7 @@ def run_latency_bench(
     time_reply: bool = True,
     command_rate_hz: float = 50.0,
 ) -> LatencyBenchResult:
-    """Stream from a fresh virtual FC for `seconds`; see the module docstring."""
+    """Stream from a fresh virtual FC for `seconds` (what it measures: docs/bench.md)."""
     with tempfile.TemporaryDirectory(prefix="wftool-bench-") as scratch:
         session = VirtualFcSession(
             binary, Path(scratch) / "fc", rate_hz=rate_hz, port_base=None,

@@ -1,27 +1,5 @@
-"""What recording costs: bytes and CPU per frame of the JSON and ROS 2 MCAP formats.
-
-A synthetic flight of `bench decode` (E1 on, ~1049 frames/s; `decode.STREAMS`: realistic
-motion and sensor noise, or every value sweeping) is fed through the real verify path, as
-the live loop feeds it: one read per `chunk_bytes` with real-time arrival stamps, each read
-recorded as an event, its packets decoded by a `StreamMonitor` and recorded with a health
-snapshot every 100 ms. The same replay without a recorder is the reference: a format's CPU
-is its run's process time minus the reference's, so it counts the recorder alone
-(encoding, MCAP chunks, zstd, file writes).
-Sizes are the files on disk after chunk compression, metadata.yaml included.
-
-Reading back is timed too, in frames/s: `replay` (the recorded events through the
-per-frame decoder and the monitor) and `recording_columns` (the events into NumPy columns,
-with OBC times; needs the analysis extra).
-
-The recorder's CPU counts its writer process (`wftool.recording.mcapprocess`) too: the CPU
-of the children this process waited for is added to its own.
-
-Stalls: what recording costs the thread that reads and stamps. The ROS 2 recording's
-messages are written again, one read's messages at a time, paced by their log times
-(`STALL_SPEED` times real time), by the writer process and by the in-process `McapFile`
-(what recordings used before, written from the reading thread); a read's stall is the
-wall time its messages' `add_message` calls took. The two alternate, `repeat` times; the
-least worst case counts for each.
+"""`wftool bench record`: what recording costs (bytes and CPU per frame of each format, how
+fast it reads back) and the stalls it gives the reading thread (docs/bench.md).
 """
 
 from __future__ import annotations

@@ -1,23 +1,9 @@
-"""A session with Betaflight's text CLI: enter, run commands, read settings, save or leave.
+"""A session with Betaflight's text CLI: enter, run commands, read settings, save or leave
+(the CLI's ways this is built on: docs/design.md).
 
-Betaflight facts (2025.12 `cli.c`, `msp_serial.c`) this is built on:
-
-- `#` on an MSP port only *requests* the CLI; it opens after 100 ms without input and then
-  prints a banner and the `# ` prompt. Bytes sent before that are swallowed, which is why a
-  command sent right after `#` gets lost. So: send `#` plus a newline (harmless in either
-  state: in a CLI already open it just re-prints the prompt) and wait for the prompt.
-- Errors read `###ERROR IN <command>: <message>###`, e.g. `INVALID NAME: foo`,
-  `INVALID VALUE` followed by the line `Allowed range: 0 - 1000`.
-- Every way out reboots: `save` (persist, then reboot) and `exit` (reboot, "unsaved changes
-  lost"). `exit noreboot` keeps running with the unsaved changes live in RAM and arming
-  blocked until the next reboot; wftool uses it only to hand the port back to MSP briefly.
-- The CLI stays open when the link drops (USB unplugged, a killed wftool): the FC then
-  ignores MSP until someone leaves its CLI. It takes printable ASCII only (other bytes are
-  dropped) and at most 255 characters a line (the rest is dropped); `#` starts a comment.
-  Ctrl-L redraws the prompt and DEL erases one character of the line being typed; on an
-  MSP port both are ignored (neither is `#` nor a possible reboot character, 48-126).
-- `diff all` ends with `# save configuration`, then `save` and the prompt; its comment
-  lines start with `# `, which looks like the prompt when the output pauses there.
+    cli = CliSession.open("socket://127.0.0.1:5761")   # in the CLI once it answers
+    print(cli.get("gyro_lpf1_static_hz"))
+    cli.exit()   # reboots: unsaved changes are dropped
 """
 
 from __future__ import annotations

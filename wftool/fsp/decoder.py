@@ -1,19 +1,10 @@
-"""The streaming FSP decoder: bytes in, timed state packets out, every anomaly counted.
+"""The streaming FSP decoder: bytes in, timed state packets out, every anomaly counted; it never
+raises on input (loss, FC drops, wraps, resets, outliers: docs/design.md).
 
-`StateDecoder.feed` takes bytes as they arrive from any transport. It never raises on
-input. On top of framing (`framing.Deframer`) it keeps the books a flight needs:
-transport loss (E1 `seq` gaps, or `sample_time_us` gaps without E1) apart from frames the
-FC itself dropped (E1 `drops`), wraps and resets of the FC clock, and each frame's time
-on the OBC clock. With E2 (spec §10) it also takes the FC's time replies, places their FC
-times in the stream's and pairs them with the commands sent (`round_trips`); a decoder
-without E2 counts each reply as one chunk of bad length.
-
-A packet that does not continue the stream (`follows`) is delivered at once, marked an
-outlier, and kept out of the books until the next packet shows what it was: an outlier
-(a repeated old packet, or a sample time that passed the CRC by chance) when the next one
-continues the stream before it, or the first packet of what comes next (an FC reset, a
-wrap after a gap) when the next one continues it. Only then, with E1 `seq` and its
-continuity, is a step decided: one lone packet never makes a reset or a loss.
+    decoder = StateDecoder()
+    for packet in decoder.feed(data, arrival_time):
+        ...
+    decoder.stats   # packets, rejections by cause, loss, FC drops, wraps, resets
 """
 
 from __future__ import annotations

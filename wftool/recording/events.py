@@ -1,10 +1,9 @@
-"""What a live run hands its recordings: its events in order, health snapshots, and the
-`Sink` protocol of whatever keeps or shows them (a recorder, a live view).
+"""What a live run hands its recordings: its events in order (`Event`), health snapshots
+(`StreamHealth`), and the `Sink` protocol of whatever keeps or shows them.
 
-    Event("connected", t)                  # the port opened; t: OBC monotonic time, s
+    Event("connected", t)                  # t: OBC monotonic time, s
     Event("bytes", t, data)                # one read, exactly as read
     Event("command", t, rc=(1500, ...))    # RC sent: roll pitch yaw throttle aux3 aux4
-    Event("disconnected", t)
 """
 
 from __future__ import annotations

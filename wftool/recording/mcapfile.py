@@ -1,20 +1,5 @@
-"""An MCAP file that stays readable when the disk fills up mid-run.
-
-The `mcap` writer keeps messages in a chunk in memory and writes each chunk (compressed,
-with its message index) in one go. When such a write fails (ENOSPC, EFBIG, EIO), the file
-is cut back to the end of the last complete chunk and closed with a Data End record and a
-Footer without a summary section: a valid MCAP that every reader scans (the `mcap`
-Python and C++ readers, rosbags, rosbag2 and Foxglove fall back to a linear scan). The
-messages of the chunk that failed (up to one chunk, about a second at 1 kHz) are lost;
-everything before is kept. The failure is raised once, as `RecordingError`; messages after
-it are dropped.
-
-The failed write's partial data is what frees the space the ~50-byte ending needs; only a
-disk that another process filled to the last block can leave the file without an ending.
-
-A file without an ending (its writer was killed: SIGKILL, a power cut) is read by
-`LinearReader`, record by record, as far as it goes, the readable part of a chunk cut
-short included; `Cut` says what was read and what was lost.
+"""An MCAP file that stays readable when the disk fills up mid-run (`McapFile`), and one cut
+short read as far as it goes (`LinearReader`, `Cut`); docs/recording.md says how.
 """
 
 from __future__ import annotations

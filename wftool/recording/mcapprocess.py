@@ -1,37 +1,7 @@
-"""An MCAP recording written by a process of its own, so that recording never delays the
-thread that reads and stamps.
+"""An MCAP recording written by a process of its own (`McapProcess`, with `McapFile`'s
+interface), so that writing a chunk never delays the thread that reads and stamps.
 
-The `mcap` writer finalises each 1 MiB chunk in Python (records, message indexes) and
-compresses it: 6-13 ms with the GIL held, once every one to three seconds of a recording.
-Called from the thread that stamps each read with `time.monotonic()` (the MSP poller, the
-verify loop), it delayed those stamps by as much. A writer *thread* does not help enough:
-its chunk finalisation still holds the GIL, and a reader waking meanwhile waits the
-interpreter's switch interval (5 ms) for it, measured; shortening that interval is a
-setting of the whole process. A writer process shares no GIL with the reader.
-
-`McapProcess` has `McapFile`'s interface and runs one in a child Python process
-(`serve`). The caller's thread packs each message into a
-batch and hands the batch to the child's stdin every `FLUSH_PERIOD_S` (or `FLUSH_BYTES`):
-a pack per message and one pipe write per batch, tens of microseconds.
-
-What stays as with `McapFile`:
-
-- The file is created by the child before the constructor returns; a path that cannot be
-  written (or exists) fails there, as `UsageError`, before the stream starts.
-- A write failure (full disk) makes the child finish the file up to its last chunk and
-  report; the caller's next `add_message` (or `finish`) raises `RecordingError`, once, a
-  batch period or so after the child met it; later messages are dropped.
-- The child runs in a session of its own, which the terminal's Ctrl-C and hangup do not
-  reach, and ignores SIGINT, SIGTERM and SIGHUP sent to it: it ends when its input does.
-  `finish()` ends the file; so does the caller's death (SIGKILL, a crash), with everything
-  it had handed over (all but the last batch, at most `FLUSH_PERIOD_S`). Only when the
-  child is killed too (a power cut) is the file left without its ending, read by
-  `LinearReader` as far as it goes.
-- `message_counts` and `time_range` say what the file holds, once `finish()` returned.
-
-When the child falls behind (a stalled disk), the pipe holds up to `PIPE_BYTES`; beyond
-that the caller's batch write waits for the child: nothing is dropped, memory stays
-bounded, and the wait is counted (`waits`, `waited_s`).
+Why a process and what it keeps of `McapFile`'s guarantees: docs/recording.md.
 """
 
 from __future__ import annotations

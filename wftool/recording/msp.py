@@ -1,29 +1,10 @@
-"""The MSP baseline's recording: what `wftool record msp` polled, as ROS 2 messages.
+"""The MSP baseline's recording: what `wftool record msp` polled, as ROS 2 messages in the
+same kind of bag as the FSP stream's, stamped on reception (MSP carries no FC time).
 
-The same container as the FSP stream's recording (`wftool.recording.rosbag.BagFile`: a rosbag2
-directory, or one `.mcap` file) with the same raw log, on topics of its own:
+    result = record_msp("socket://127.0.0.1:5761", Path("msp"), duration_s=30)
+    replies, connections = msp_replies(RecordingReader(path, EVENT_TOPIC, METADATA_NAME))
 
-| topic | type | one per |
-|---|---|---|
-| `/msp/imu` | `sensor_msgs/msg/Imu` | MSP_RAW_IMU reply (1) |
-| `/msp/attitude` | `wftool_msgs/msg/Attitude` | MSP_ATTITUDE reply |
-| `/msp/rc` | `wftool_msgs/msg/MspRc` | MSP_RC reply (every channel the FC reports) |
-| `/msp/battery` | `sensor_msgs/msg/BatteryState` | MSP_ANALOG reply (voltage, current) |
-| `/msp/events` | `wftool_msgs/msg/StreamEvent` | read, request written, connect, disconnect (2) |
-
-(1) Angular velocity in rad/s; linear acceleration in m/s² when the FC's 1 g in raw units
-(`acc_1g`, which MSP does not report) is given, else marked "no estimate" (covariance
-element 0 = −1, REP-145); no orientation (MSP_ATTITUDE is on its own topic).
-(2) A read is a BYTES event with the bytes as read; a request is a COMMAND event with the
-request's bytes in `data`.
-
-Stock MSP carries no FC time: every message's `header.stamp` and log time are the reply's
-*reception* time (the OBC's `time.monotonic()` when the read that completed it returned)
-as Unix time. `/msp/events` keeps the bytes both ways with their monotonic times, so
-`msp_replies` decodes the replies again exactly as the poller did, stamps included; that is
-what `wftool analyze timing` reads. Metadata `wftool.msp`: the port, the schedule, the
-window, the MSP version, the rate the IMU was polled at (`expected_rate_hz`),
-`serial_update_rate_hz` when known, and at the end the poll's counts (`result`, JSON).
+Topics and metadata: docs/recording.md.
 """
 
 from __future__ import annotations
@@ -218,7 +199,7 @@ def record_msp(
     stop: threading.Event | None = None,
     log: Log = quiet,
 ) -> PollResult:
-    """Poll the FC's MSP port `url` and record it to `path` (see the module docstring and
+    """Poll the FC's MSP port `url` and record it to `path` (docs/recording.md,
     `wftool.fc.msp_poller`); the recording is finished however the run ends. A port that
     cannot be opened leaves no recording behind."""
     check_poll(schedule, window)

@@ -1,13 +1,10 @@
-"""Reads a recording back, either format (a ROS 2 bag directory, an MCAP file): the run's
-metadata, its events as the live loop saw them, or its reads as NumPy columns.
+"""Reads a recording back, either format: the run's metadata, its events as the live loop saw
+them, or its reads decoded into NumPy columns. A file cut short is read as far as it goes.
 
     recording = RecordingReader(Path("run"))
-    for event in recording.events():      # Event("connected", t), Event("bytes", t, data) …
+    for event in recording.events():   # Event("connected", t), Event("bytes", t, data), …
         ...
     columns = recording_columns(Path("run"))   # needs the analysis extra
-
-A file whose writer was killed is read as far as it goes; anything else wrong with it is a
-one-line `UsageError` naming it.
 """
 
 from __future__ import annotations

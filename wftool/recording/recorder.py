@@ -1,14 +1,9 @@
-"""Writes a live run as it happens: a ROS 2 bag (`rosbag`, the default) or a JSON MCAP
-file, and CSV beside either. It is a `Sink` of the live loop.
+"""Writes a live run as it happens: a ROS 2 bag (the default) or a JSON MCAP file, and CSV
+beside either; a `Sink` of the live loop. No file is ever overwritten.
 
     with Recorder(Path("run"), None, run_metadata(url, baud, None, None)) as recorder:
-        recorder.event(Event("connected", t))
         recorder.event(Event("bytes", t, data))
         recorder.packets(decoder.feed(data, t), None)
-
-The JSON format is one MCAP file with two JSON-schema channels: `/fsp/frame`, one message
-per decoded frame stamped with its OBC time, and `/fsp/events`. Either way `/fsp/events`
-holds what the monitor saw, exactly (`reader`). No file is ever overwritten.
 """
 
 from __future__ import annotations

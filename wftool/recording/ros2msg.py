@@ -1,34 +1,8 @@
-"""ROS 2 messages of the FSP stream: `.msg` definitions and their CDR bytes.
+"""ROS 2 messages of the FSP stream: their `.msg` definitions and CDR bytes, encoded once here
+for the recording and the live view (stamps, units, covariances: docs/recording.md).
 
-What the ROS 2 recording (`wftool.recording.rosbag`) and the live Foxglove view
-(`wftool.verify.foxglove`) publish, encoded once here:
-
-- `sensor_msgs/msg/Imu` per frame: `header.stamp` is the frame's capture time on the OBC
-  clock as Unix time (`SensorFrame.obc_time`; a frame decoded without arrival times falls
-  back to its packet's arrival, or to now). The estimate exists from the first packet on,
-  anchored at that packet's arrival; `StreamHealth.clock_locked` says when the estimator
-  has converged (its first update, 100 packets in). Orientation is the FSP quaternion as
-  sent (Q15, not renormalised; a level craft may show w = −1, the same rotation);
-  angular velocity in rad/s; linear acceleration in m/s² (g × 9.80665). Covariances
-  follow sensor_msgs and REP-145: all zeros = unknown; element 0 = −1 = no estimate at
-  all (no attitude in the frame, or no accelerometer calibration: acc_1g = 0).
-  `frame_id` is `fc`: Betaflight's body axes exactly as the FC reports them, not
-  converted to REP-103.
-- `sensor_msgs/msg/BatteryState`: voltage; the FC measures nothing else (NaN, per the
-  message's convention).
-- `wftool_msgs/msg/{RcChannels,MotorRpm,Attitude,StreamHealth,StreamEvents}`, our own
-  types, with their definitions below (and `StreamEvent`, one event a message, which
-  earlier recordings hold).
-
-Each schema is the message's definition followed by those of the types it uses, in the
-`ros2msg` form MCAP and the Foxglove WebSocket protocol expect.
-
-Why our own CDR encoder: every message here has a fixed layout, so one precompiled
-`struct` per type packs a message in about a microsecond. The generic serializers walk the
-definition per message: mcap-ros2-support took 25 µs per `Imu` on this machine, a
-quarter of the 1 kHz recording budget (5 % of a core = 50 µs per frame) for one topic.
-The tests prove the bytes with an independent reader (rosbags' CDR deserializer, driven by
-the definitions stored in the file) and against rosbags' own serializer.
+    encoder = FrameEncoder()
+    data = encoder.imu(frame, encoder.frame_stamp_ns(frame, packet.arrival_time))
 """
 
 from __future__ import annotations

@@ -1,37 +1,9 @@
-"""ROS 2 recordings: a rosbag2 directory with one MCAP file (`ros2` profile, CDR messages).
+"""ROS 2 recordings: a rosbag2 directory with one MCAP file (`ros2` profile, CDR messages), or
+that MCAP file alone, which `ros2 bag play`, rosbags, Foxglove and PlotJuggler open as is.
 
-`ros2 bag play DIR`, `ros2 bag info DIR`, rosbags, Foxglove and PlotJuggler open it as it
-is: `DIR/metadata.yaml` (rosbag2 metadata version 8, what rosbag2 writes since Jazzy and
-reads back to Humble) next to `DIR/DIR_0.mcap`, named the way `ros2 bag record -o DIR`
-names it. A path ending in `.mcap` gets that MCAP file alone, without the directory: the
-same messages, which rosbag2 and rosbags open as a bag of one file and Foxglove opens as
-any MCAP file. Topics:
-
-| topic | type | rate |
-|---|---|---|
-| `/fsp/imu` | `sensor_msgs/msg/Imu` | every frame |
-| `/fsp/rpm` | `wftool_msgs/msg/MotorRpm` | every frame |
-| `/fsp/rc` | `wftool_msgs/msg/RcChannels` | on change, at least 10 Hz (1) |
-| `/fsp/battery` | `sensor_msgs/msg/BatteryState` | 10 Hz |
-| `/fsp/health` | `wftool_msgs/msg/StreamHealth` | each snapshot the caller passes (verify: 10 Hz) |
-| `/fsp/events` | `wftool_msgs/msg/StreamEvents` | every read, connect, disconnect, command (2) |
-
-(1) A change is written with the frame before it, so a plot steps rather than ramps.
-(2) In batches: one message per `EVENT_BATCH_S` of events at most, fewer when the writer
-process asks for them sooner (`mcapprocess.CUT_PERIOD_S`, `CUT_BYTES`). Earlier recordings
-held one `StreamEvent` per event; they are read as well.
-
-`/fsp/events` holds the raw bytes exactly as read, so `wftool replay` reproduces the run.
-Its messages go into chunks of their own, each written before the chunk of the frames
-read meanwhile (`McapFile.add_message(apart=True)`): reading a recording back decompresses
-the raw bytes alone, and a file cut short holds the bytes of every frame it holds.
-Batching them saves a message (31 bytes of record, 16 of index) per read.
-`BagFile` is the container alone (directory, MCAP file, metadata.yaml) for any topics: the
-MSP baseline's recording (`wftool.recording.msp`) is one too.
-Message definitions: `wftool.recording.ros2msg`. A message's log time is when the OBC read it
-(rosbag2's receive time: `ros2 bag play` paces by it); `header.stamp` is when the FC
-captured it. `ros2 bag play` publishes the standard types anywhere; the `wftool_msgs`
-topics need that package built on the ROS side, and are skipped with a warning otherwise.
+`BagFile` is the container for any topics; `RosbagWriter` records the FSP stream's
+(`/fsp/imu`, `/fsp/rpm`, `/fsp/rc`, `/fsp/battery`, `/fsp/health`, `/fsp/events`). Layout,
+topics and rates: docs/recording.md.
 """
 
 from __future__ import annotations
@@ -216,7 +188,7 @@ class BagFile:
 
 
 class RosbagWriter(BagFile):
-    """The FSP stream's recording (the topics above), in a `BagFile` at `path`."""
+    """The FSP stream's recording (the `/fsp/...` topics), in a `BagFile` at `path`."""
 
     def __init__(self, path: Path, metadata_name: str, metadata: dict[str, str]) -> None:
         self._encoder = FrameEncoder()

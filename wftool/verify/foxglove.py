@@ -1,19 +1,9 @@
-"""The live stream for Foxglove: a WebSocket server publishing ROS 2 messages as they decode.
+"""The live stream for Foxglove: a WebSocket server (the Foxglove SDK, extra
+`wftool[foxglove]`) publishing the recording's ROS 2 messages as they decode; a `Sink` of
+the live loop that never waits for a viewer (how: docs/ros2.md).
 
-Built on the Foxglove SDK (`foxglove-sdk`, extra `wftool[foxglove]`). Its server runs in
-the SDK's own threads, outside the GIL, and `Channel.log` only queues the message: about
-0.3 µs here. Each client has a bounded queue (`backlog` messages); when a slow or stuck
-viewer lets it fill, its oldest messages are dropped, and a client whose control queue
-fills is disconnected. Publishing never waits for a viewer. Nothing is encoded for a
-topic nobody subscribed to. A server written on `websockets` would do that work (framing,
-per-client queues) in Python, under the GIL the decoder needs.
-
-The SDK speaks the Foxglove WebSocket protocol under its current subprotocol name,
-`foxglove.sdk.v1`: the Foxglove app and Lichtblick (since late 2025) connect; clients that
-only offer the old name, `foxglove.websocket.v1`, are refused at the handshake.
-
-Messages are the recording's (`wftool.recording.ros2msg`, CDR with `ros2msg` schemas) plus the
-attitude in degrees, for plotting.
+    with FoxgloveLive(8765) as view:   # ws://127.0.0.1:8765
+        view.packets(packets, health)
 """
 
 from __future__ import annotations

@@ -1,12 +1,11 @@
-"""Statistics of a live (or replayed) FSP stream: what `verify` shows and judges.
+"""Statistics of a live or replayed FSP stream: what `verify` shows and judges. One decoder
+reads the whole run, across reconnects; interval statistics are exact histograms
+(docs/design.md).
 
-`StreamMonitor` is fed the same events live and on replay — connects, disconnects, byte
-chunks with their OBC arrival time, commands sent — so a recording replays to the same
-summary. One decoder reads the whole run: a reconnect breaks the bytes, not the FC's
-stream, so what the FC sent during an outage is counted as lost (E1 `seq` says exactly how
-much) and rates are over the whole run. Interval statistics live in integer-µs histograms:
-exact percentiles in memory bounded by the number of distinct intervals, not by the length
-of the run; an interval across a known gap (E1 `seq` or `drops`) is no interval of the FC's.
+    monitor = StreamMonitor(url, expected_rate_hz=1000.0)
+    for event in events:
+        monitor.apply(event)
+    monitor.summary()
 """
 
 from __future__ import annotations

@@ -1,14 +1,10 @@
 """The verify API: judge an FSP stream, live or recorded; the CLI only renders what it returns.
 
-    session = VerifySession("socket://127.0.0.1:5762", duration_s=10,
-                            expected_rate_hz=1000.0)
-    result = session.run()
-    print(result.verdict.passed, result.summary.frames)
-    result.check()   # raises VerificationFailed naming the failed checks
-
-`VerifySession` wires what a run needs — the monitor (which decodes), the uplink pattern,
-the recording — runs the live loop and returns the summary with its verdict. `replay`
-does the same for a recording. `criteria_for` turns a user's limits into `Criteria`.
+session = VerifySession("socket://127.0.0.1:5762", duration_s=10, expected_rate_hz=1000.0)
+result = session.run()
+print(result.verdict.passed, result.summary.frames)
+result.check()   # raises VerificationFailed naming the failed checks
+replay(Path("run")).verdict   # the same for a recording
 """
 
 from __future__ import annotations
