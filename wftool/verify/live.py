@@ -145,7 +145,7 @@ class _LiveRun:
         except PortError:
             if not self._connected_once:
                 raise  # the caller's connection error, not a dropout
-            self._backoff = min(2 * self._backoff, BACKOFF_MAX_S)
+            self._backoff = min(2 * self._backoff, BACKOFF_MAX_S)  # a rebooting FC takes seconds
             self._retry_at = t + self._backoff
             return None
         self._port = port
@@ -159,6 +159,7 @@ class _LiveRun:
         """One read, and the command that is due; the time the read returned (`t` if the
         port went away, which drops it)."""
         uplink = self._uplink
+        # A read returns at once when bytes come; else it waits no longer than the next command.
         wait = READ_TIMEOUT_S if uplink is None else max(0.0, min(READ_TIMEOUT_S, uplink.due - t))
         try:
             data = port.read_bytes(wait)

@@ -254,10 +254,11 @@ class StreamMonitor:
             if last_arrival is not None:
                 self.arrival_intervals.add(round((t - last_arrival) * 1e6))
             last_arrival = t
-            if packet.outlier:
+            if packet.outlier:  # out of the books: its times would make false intervals
                 continue
             first_us, second_us = packet.frames[0].time_us, packet.frames[1].time_us
             assert first_us is not None and second_us is not None  # the decoder timed them
+            # Across a gap (lost packets, FC drops, a reset) the time spans frames never seen.
             if previous is not None and previous_us is not None and _contiguous(previous, packet):
                 self.fc_intervals.add(first_us - previous_us)
             self.fc_intervals.add(second_us - first_us)
@@ -312,6 +313,7 @@ class StreamMonitor:
         clock = decoder.clock
         frames = totals.frames
         window = [n for t, n in self._recent if t >= now - RATE_WINDOW_S]
+        # Right after a (re)connect the window is as long as the connection, not 2 s.
         window_s = min(RATE_WINDOW_S, now - connected_at) if connected_at else RATE_WINDOW_S
         return StreamSummary(
             port=self.port,
