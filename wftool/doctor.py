@@ -19,9 +19,9 @@ from pathlib import Path
 from serial.tools import list_ports
 
 from wftool.errors import ToolchainError, UsageError
-from wftool.fc.transport import STM32_DFU, STM32_VCP, UsbId
 from wftool.firmware import toolchain
 from wftool.firmware.project import Project, find_project
+from wftool.link.transport import STM32_DFU, STM32_VCP, UsbId
 
 SYSTEM_RULES_DIRS = (
     Path("/etc/udev/rules.d"),

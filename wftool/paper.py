@@ -1,24 +1,8 @@
-"""`wftool paper timing`: the paper's timing evaluation, reproduced in one call.
+"""`wftool paper timing`: the paper's timing evaluation reproduced in one call, on the virtual
+FC or a board: FSP and MSP recorded, Table 1 beside the paper's, Figs. 2–4
+(docs/analysis.md).
 
-On the virtual FC (default) or a board, into one output directory:
-
-1. The FC: the virtual FC starts with FSP on UART2, `fsp_rate_hz`, synthetic motion and
-   `serial_update_rate_hz` = 1000 (the paper's MSP baseline ran a 1 kHz serial task), all
-   through the safe CLI workflow (its working directory: `sitl/`); a board gets
-   `serial_update_rate_hz` the same way (its backup in `backups/`) unless told to keep it.
-2. `fsp/`: the FSP port recorded for the duration, as `verify --record` records it, the
-   expected rate from `fsp_rate_hz` and the FC's PID looptime (over MSP).
-3. `msp/`: the MSP port polled on the paper's schedule for the duration, as `wftool record
-   msp` records it (`wftool.fc.msp_poller`). The two run one after the other, so neither
-   competes with the other for the OBC or the FC's serial task.
-4. `table1.md`, `table1.json` (Table 1 beside the paper's published values,
-   `wftool.analysis.published`), `fig2-histograms.png`, `fig3-intervals.png`
-   (`wftool.analysis.timing`).
-5. Fig. 4, two ways: `fig4-fsp-spectrum.png`, the spectrogram of the FSP recording's
-   acceleration as the FC streamed it (after its RPM filter; the virtual FC has no motors,
-   so no RPM and no fundamentals to draw); and `fig4-accfilter-spectrum.png`, the
-   accelerometer-filter harness's synthetic flight before and after the series' own RPM
-   filter (paper settings, the BMI270's 800 Hz; report and series in `accfilter/`).
+    run = run_timing(Path("paper-timing"), duration_s=30, binary=sitl_binary)
 """
 
 from __future__ import annotations
@@ -38,8 +22,8 @@ from wftool.fc.params import apply_plan, plan_from_assignments
 from wftool.fsp import DEFAULT_BAUDRATE
 from wftool.fsp.schedule import DEFAULT_RATE_HZ
 from wftool.progress import Log, quiet
+from wftool.recording.msp import record_msp
 from wftool.sitl.session import Motion, VirtualFcSession
-from wftool.verify.msp_recording import record_msp
 from wftool.verify.session import VerifyResult, VerifySession, fc_frame_rate_hz
 
 SERIAL_RATE_HZ = 1000
@@ -86,7 +70,7 @@ def run_timing(
     with_accfilter: bool = True,
     log: Log = quiet,
 ) -> TimingRun:
-    """The whole comparison (see the module docstring) on the virtual FC built as `binary`,
+    """The whole comparison (docs/analysis.md) on the virtual FC built as `binary`,
     or on `board`. `serial_rate_hz` None leaves a board's setting as it is (the virtual
     FC then gets the highest it allows). `with_accfilter` False leaves out the harness's Fig. 4
     (it compiles the series' filter code from betaflight/ of `project_dir`)."""
@@ -102,7 +86,7 @@ def run_timing(
         raise UsageError(f"cannot create {out_dir}: {exc.strerror or exc}") from None
     if board is not None:
         fc = _board(board, out_dir, fsp_rate_hz, serial_rate_hz, log)
-    else:
+    elif binary is not None:  # one of them, as checked above
         fc = _virtual_fc(binary, out_dir / "sitl", fsp_rate_hz, serial_rate_hz, log)
     with fc as (ports, expected_rate_hz):
         run = _record(ports, out_dir, duration_s, expected_rate_hz, serial_rate_hz, window, log)

@@ -9,10 +9,10 @@ from pathlib import Path
 import pytest
 
 from tests.conftest import run_cli
-from tests.verify.test_recording import RecordingMonitor
+from tests.recording.test_reader import RecordingMonitor
 from wftool.fsp import SensorFrame, StatePacket
 from wftool.fsp.encoder import encode_state
-from wftool.verify.recording import Recorder
+from wftool.recording.recorder import Recorder
 
 np = pytest.importorskip("numpy", reason="needs the analysis extra (NumPy)")
 pytest.importorskip("scipy", reason="needs the analysis extra (SciPy)")

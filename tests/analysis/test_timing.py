@@ -18,14 +18,15 @@ import pytest
 from mcap.writer import Writer
 
 from tests.conftest import run_cli
-from tests.verify.test_recording import RecordingMonitor
+from tests.recording.test_reader import RecordingMonitor
 from wftool.errors import UsageError
 from wftool.fc.msp import Cmd, MspVersion, encode_request
 from wftool.fc.msp_poller import MspReply
 from wftool.fsp import SensorFrame, StatePacket
 from wftool.fsp.encoder import encode_state
-from wftool.verify.msp_recording import MspRecorder
-from wftool.verify.recording import Recorder, run_metadata
+from wftool.recording.events import run_metadata
+from wftool.recording.msp import MspRecorder
+from wftool.recording.recorder import Recorder
 from wftool.verify.session import replay
 
 np = pytest.importorskip("numpy", reason="needs the analysis extra (NumPy)")

@@ -23,7 +23,7 @@ from wftool.bench.clock import (
     score,
     simulate,
 )
-from wftool.fsp import clock as clock_module
+from wftool.fsp import estimators
 from wftool.fsp.clock import U32, ClockState
 
 MODEL = {model.name: model for model in MODELS}
@@ -105,7 +105,7 @@ def test_score_measures_the_error_it_is_given(monkeypatch: pytest.MonkeyPatch):
     trace = simulate(MODEL["u32 wrap"], 6, 20.0)
     for bias in (0.0, 25e-6):
         oracle = _Oracle(trace, bias)
-        monkeypatch.setitem(clock_module._FACTORIES, "oracle", lambda oracle=oracle: oracle)
+        monkeypatch.setitem(estimators._FACTORIES, "oracle", lambda oracle=oracle: oracle)
         figures = score("oracle", trace)
         assert figures.envelope_rms_s == pytest.approx(bias, abs=1e-9)
         assert figures.envelope_p99_s == pytest.approx(bias, abs=1e-9)

@@ -27,9 +27,10 @@ from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
 from tests.conftest import run_cli as run
+from tests.recording.test_rosbag import flight
 from tests.verify.fake_fc import PACKET_S, FakeFc
-from tests.verify.test_rosbag import flight
-from wftool.verify.recording import Event, Recorder
+from wftool.recording.events import Event
+from wftool.recording.recorder import Recorder
 
 NO_PORT = "socket://127.0.0.1:9"  # nothing listens: reached only if the checks before pass
 
@@ -218,7 +219,7 @@ def test_a_signal_stops_a_timed_recording_run_cleanly(sig, code, said, capsys, t
 
 
 def writer_processes(parent: int | None = None) -> list[int]:
-    """The recording writers (`wftool.verify.mcapprocess`) that process `parent` (this
+    """The recording writers (`wftool.recording.mcapprocess`) that process `parent` (this
     one by default) started."""
     parent = os.getpid() if parent is None else parent
     found = []

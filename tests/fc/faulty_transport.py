@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 import serial
 
-from wftool.fc.transport import open_port
+from wftool.link.transport import open_port
 
 COMMENT_START = b"\r\n# "
 DIFF_END = b"\r\n# save configuration\r\nsave\r\n# "

@@ -22,9 +22,9 @@ from tests.conftest import run_cli
 from wftool.errors import UsageError
 from wftool.fc.msp import Cmd, FrameReader, MspVersion, parse_raw_imu
 from wftool.fc.msp_poller import PAPER_SCHEDULE, MspPoller, MspReply, PollRate, parse_schedule
-from wftool.fc.transport import open_port
+from wftool.link.transport import open_port
+from wftool.recording.msp import msp_replies
 from wftool.sitl.process import VirtualFC
-from wftool.verify.msp_recording import msp_replies
 
 SERIAL_TASK_HZ = 100
 """A fresh SITL's serial_update_rate_hz (Betaflight's default)."""

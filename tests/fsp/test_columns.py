@@ -25,14 +25,16 @@ from tests.fsp.strategies import corruption, harm, state_packets
 from tests.fsp.test_clock import MODEL as CLOCK_MODELS
 from tests.fsp.test_clock import splice_step
 from tests.fsp.test_decoder import frame
-from tests.verify.test_recording import record_two_connections
+from tests.recording.test_reader import record_two_connections
 from wftool.bench.clock import simulate
 from wftool.errors import UsageError
 from wftool.fsp import ClockEstimator, ClockState, StateDecoder, StatePacket, StreamStats
 from wftool.fsp.encoder import encode_state
 from wftool.fsp.framing import Rejection
 from wftool.fsp.packets import FRAME_LAYOUT
-from wftool.verify.recording import FRAME_TOPIC, Event, Recorder, recording_columns
+from wftool.recording.events import Event
+from wftool.recording.reader import recording_columns
+from wftool.recording.recorder import FRAME_TOPIC, Recorder
 
 np = pytest.importorskip("numpy", reason="the columnar decoder needs wftool[analysis]")
 from wftool.fsp import columns  # noqa: E402 - after the NumPy check

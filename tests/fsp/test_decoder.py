@@ -184,3 +184,19 @@ def test_euler_angles_do_not_depend_on_quaternion_sign():
 
 def test_acc_without_calibration_is_nan():
     assert all(math.isnan(v) for v in frame(0, acc=(1, 2, 3)).acc_g)
+
+
+def test_the_chunk_cut_by_joining_is_told_apart():
+    """Bytes before the first delimiter end a chunk whose start was never seen: rejected
+    as any chunk, and also counted in `joined`; a resync joins anew, later garbage is not."""
+    decoder = StateDecoder()
+    wire = stream(range(20), e1=True)
+    decoder.feed(wire[37:50], 1.0)  # inside packet 0, no delimiter yet
+    decoder.feed(wire[50:], 1.1)
+    assert decoder.stats.packets == 19
+    assert sum(decoder.joined.values()) == sum(decoder.stats.rejected.values()) == 1
+    decoder.feed(b"\x02\x07\x00", 1.2)  # after the stream was joined: an error alone
+    assert sum(decoder.stats.rejected.values()) == 2 and sum(decoder.joined.values()) == 1
+    decoder.resync()
+    decoder.feed(wire[5:] + b"\x02\x07\x00", 1.3)  # the cut chunk, then the same garbage
+    assert sum(decoder.joined.values()) == 2 and sum(decoder.stats.rejected.values()) == 4

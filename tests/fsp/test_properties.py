@@ -7,9 +7,9 @@ from hypothesis import strategies as st
 
 from tests.fsp.strategies import command_packets, corruption, harm, state_packets
 from wftool.fsp import CommandDecoder, StateDecoder
-from wftool.fsp.crc import crc8
 from wftool.fsp.encoder import encode_command, encode_state
 from wftool.fsp.packets import pack_state
+from wftool.link.crc import crc8
 
 
 @given(st.lists(state_packets, min_size=1, max_size=40))

@@ -15,8 +15,9 @@ from dataclasses import dataclass, field
 import pytest
 
 from wftool.fsp import SensorFrame, StateDecoder, StatePacket
-from wftool.fsp.clock import RoundTripObserver, make_estimator
+from wftool.fsp.clock import RoundTripObserver
 from wftool.fsp.encoder import CommandSender, encode_state, encode_time_reply
+from wftool.fsp.estimators import make_estimator
 from wftool.fsp.framing import Rejection
 from wftool.fsp.packets import TimeReply
 from wftool.fsp.twoway import RoundTripRejection, TwoWayClockEstimator

@@ -10,7 +10,6 @@ from typing import Any
 import pytest
 
 from wftool.fsp import CommandDecoder, CommandPacket, SensorFrame, StateDecoder, StatePacket
-from wftool.fsp.crc import crc8
 from wftool.fsp.encoder import encode_command, encode_state, encode_time_reply
 from wftool.fsp.framing import STATE_E2_VERSIONS, Deframer, Rejection
 from wftool.fsp.packets import (
@@ -19,6 +18,7 @@ from wftool.fsp.packets import (
     parse_state,
     parse_time_reply,
 )
+from wftool.link.crc import crc8
 
 STATE_VECTORS = ["state_base", "state_e1_wrap", "state_mavlink"]
 FRAME_FIELDS = ["sample_time_us", "acc", "acc_1g", "gyro_scale", "gyro", "attitude", "rc", "rpm"]

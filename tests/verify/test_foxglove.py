@@ -22,10 +22,10 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import ClientConnection, connect
 
-from tests.verify.test_rosbag import assert_imu_matches, decoded_frames, flight, stamp_of
+from tests.recording.test_rosbag import assert_imu_matches, decoded_frames, flight, stamp_of
 from wftool.errors import UsageError
+from wftool.recording.events import StreamHealth
 from wftool.verify.foxglove import TOPICS, FoxgloveLive
-from wftool.verify.ros2 import StreamHealth
 
 SUBPROTOCOL = "foxglove.sdk.v1"
 MESSAGE_DATA = 0x01

@@ -1,21 +1,6 @@
-"""The accelerometer RPM filter, quantified: attenuation, motion delay and CPU cost.
-
-Each filter configuration flies the synthetic flight (`flight`) through the compiled
-firmware code (`harness`) at each sample rate, part by part (the filter is linear):
-
-- attenuation of each harmonic against RPM: output over input power of that harmonic's
-  vibration, per band of the mean motor fundamental;
-- broadband vibration reduction: the same for all vibration and sensor noise together;
-- what an estimator feels over 1–50 Hz: gain, phase and group delay of the motion band,
-  from its cross-spectrum with the filter's output (the notches move during the flight,
-  so this is the effective response), see `motion_response`;
-- CPU cost on the host: wall time of the firmware's two functions over the whole flight,
-  median of repeated runs, and as a ratio to biquadFilterApply() timed in the same run;
-- CPU cost on the SPEEDYBEEF7V3: instructions and estimated cycles per sample on the
-  emulated Cortex-M7 (`m7`), with the emulated output checked against the host's.
-
-`sine_response` measures the response with the notches held at fixed frequencies, by
-sine probes through the same code (the tests compare it with the coefficients' theory).
+"""`wftool analyze accfilter`: the accelerometer RPM filter quantified with the firmware's own
+code (attenuation, motion delay, CPU cost on the host and the Cortex-M7), its report and
+Fig. 4's series (docs/analysis.md).
 """
 
 from __future__ import annotations
@@ -26,6 +11,7 @@ import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from scipy import signal
@@ -115,7 +101,7 @@ class Evaluation:
     bands_hz: list[tuple[float, float]]
     motion_frequencies_hz: list[float]
     configs: list[ConfigResult]
-    m7_check: dict[str, object] | None
+    m7_check: dict[str, Any] | None
     flights: dict[int, Flight] = field(default_factory=dict, repr=False)
     filtered: dict[tuple[str, int], np.ndarray] = field(default_factory=dict, repr=False)
     """(config name, rate) -> the filtered raw acceleration (for Fig. 4)."""
@@ -158,7 +144,7 @@ def evaluate(
     provenance: dict[str, object] | None = None,
     progress: Callable[[str], None] = lambda message: None,
 ) -> Evaluation:
-    """Fly every configuration at every rate; see the module docstring for the figures."""
+    """Fly every configuration at every rate; the figures: docs/analysis.md."""
     bands = fundamental_bands(spec)
     flights = {rate: synthesize(spec, rate) for rate in rates}
     evaluation = Evaluation(
@@ -282,7 +268,7 @@ def fixed_group_delay_ms(
     harness: HostHarness,
     settings: FilterSettings,
     sample_rate_hz: int,
-    motor_hz: Sequence[float],
+    motor_hz: Sequence[float] | np.ndarray,
     frequencies_hz: Sequence[float] = MOTION_FREQUENCIES_HZ,
     step_hz: float = 0.25,
 ) -> np.ndarray:
@@ -297,7 +283,7 @@ def sine_response(
     harness: HostHarness,
     settings: FilterSettings,
     sample_rate_hz: int,
-    motor_hz: Sequence[float],
+    motor_hz: Sequence[float] | np.ndarray,
     frequencies_hz: Sequence[float],
     seconds: float = 4.0,
 ) -> np.ndarray:
@@ -414,7 +400,9 @@ def m7_reference_check(m7: M7Harness) -> dict[str, object]:
     }
 
 
-def _run(harness: HostHarness, settings: FilterSettings, flight: Flight, acc: np.ndarray):
+def _run(
+    harness: HostHarness, settings: FilterSettings, flight: Flight, acc: np.ndarray
+) -> np.ndarray:
     host_filter = harness.filter(settings, flight.sample_rate_hz, flight.motor_hz.shape[1])
     return host_filter.run(flight.motor_hz, acc)
 

@@ -1,18 +1,7 @@
-"""A synthetic flight for the accelerometer RPM filter: what the IMU would see, in parts.
+"""A synthetic flight for the accelerometer RPM filter: what the IMU would see (motor
+vibration, the vehicle's motion, sensor noise), in parts kept apart (docs/analysis.md).
 
-Four motors sweep their fundamentals (by default 100 → 400 Hz, each motor a few percent
-off the others and wobbling like a throttle loop), shaking the frame at the fundamental
-and its harmonics with a force that grows with speed squared (rotor imbalance); the
-vehicle's own motion (gravity, slow manoeuvres, a flat 0.5–55 Hz band that an
-estimator must see undistorted) and the BMI270's sensor noise are added on top.
-
-The parts are kept apart because the filter is linear (time-varying, but linear in its
-input): running each part through it separately tells exactly what the filter did to that
-part, with no spectral estimation in between.
-
-Towards half the sample rate the harmonics fade out (raised cosine from 0.45 fs to 0.5 fs)
-and above it they are left out, as the sensor's own anti-alias filter removes them before
-sampling; a hard cut would click, and the click would smear over the whole spectrum.
+    flight = synthesize(FlightSpec(), sample_rate_hz=800)
 """
 
 from __future__ import annotations

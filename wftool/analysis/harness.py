@@ -14,7 +14,7 @@ import shutil
 import subprocess
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from wftool.analysis.sources import UNIT_TEST_FLAGS, FilterSources
 from wftool.errors import BuildError, UsageError
@@ -87,7 +87,7 @@ class FilterSettings:
                 f"filter setting {text!r}: use a preset ({', '.join(PRESETS)}) or "
                 "NAME:key=value,... with keys harmonics, weights, min_hz, fade_range_hz, q"
             )
-        values: dict[str, object] = {}
+        values: dict[str, Any] = {}
         for item in assignments.split(","):
             key, _, value = item.partition("=")
             key = key.strip().removeprefix("acc_rpm_filter_")

@@ -1,15 +1,5 @@
-"""The filter's cost on the SPEEDYBEEF7V3: instructions executed on an emulated Cortex-M7.
-
-The filter's sources and the portable harness are compiled with arm-none-eabi-gcc and the
-flags of Betaflight's STM32F7 build (see `M7_FLAGS`), linked into one flat image (no
-startup code, harness/m7.ld) and run in Unicorn's Cortex-M7 model. A code hook counts
-every instruction the firmware's own functions execute: accRpmFilterSetMotorFrequencies()
-and accRpmFilterProcess() per sample, as accRpmFilterApply() calls them.
-
-Cycles are an estimate: one per instruction (no dual issue, no stalls), plus 13 for each
-VDIV.F32/VSQRT.F32, which take 14 cycles on the M7. The instruction count itself is
-checked against a function whose count is known: biquadFilterApply() is straight-line
-code, so it must execute exactly as many instructions as its disassembly holds.
+"""The filter's cost on the SPEEDYBEEF7V3: the series' code built for the Cortex-M7 and run in
+Unicorn, counting the instructions the firmware's functions execute (docs/analysis.md).
 """
 
 from __future__ import annotations
@@ -180,8 +170,8 @@ class M7Harness:
 
         for index, value in enumerate(args):
             self._uc.reg_write(UC_ARM_REG_R0 + index, value)
-        for index, value in enumerate(floats):
-            bits = struct.unpack("<I", struct.pack("<f", value))[0]
+        for index, number in enumerate(floats):
+            bits = struct.unpack("<I", struct.pack("<f", number))[0]
             self._uc.reg_write(UC_ARM_REG_S0 + index, bits)
         self._uc.reg_write(UC_ARM_REG_SP, _STACK_TOP)
         self._uc.reg_write(UC_ARM_REG_LR, _RETURN_ADDRESS | 1)

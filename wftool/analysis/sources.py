@@ -1,13 +1,6 @@
-"""The patched Betaflight sources the filter harness compiles, and the compilers it uses.
-
-This is the one module of wftool.analysis that talks to the firmware build package (the
-project, the fetched tree, the patch series, the toolchain finder): the harness itself only
-needs a tree that holds the series' filter code.
-
-Which files and defines make up the filter is read from the series' own unit test in the
-tree (`acc_rpm_filter_unittest_SRC` and `_DEFINES` in src/test/Makefile), and the headers
-that stand in for a board are the unit tests' (src/test/unit: platform.h, target.h, ...), so
-the harness compiles exactly what `test_acc_rpm_filter_unittest` compiles.
+"""The patched Betaflight sources the filter harness compiles (as the series' unit test
+lists them), and the compilers it uses: the one module of `wftool.analysis` that talks to
+the firmware build package.
 """
 
 from __future__ import annotations

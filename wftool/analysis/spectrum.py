@@ -1,27 +1,8 @@
-"""Fig. 4: spectrograms of the acceleration, with the motor fundamentals drawn over them.
+"""Fig. 4: spectrograms of the acceleration of a recording or an `.npz` series, the motor
+fundamentals drawn over them (the paper's STFT; the series format: docs/analysis.md).
 
-Two kinds of input carry acceleration and motor speed:
-
-- a recording of `wftool verify --record` (rosbag2 directory or MCAP file, either format),
-  decoded from its raw bytes by the columnar decoder: FSP frames with acceleration in g (as
-  the FC streams it, i.e. after its RPM filter) and mechanical RPM per motor; one panel.
-  Samples are placed by their FC capture times; a recording with gaps or FC resets is cut
-  into continuous stretches and the longest is shown (the command says so);
-- an acceleration series in .npz (written by `wftool analyze accfilter`, or by anyone):
-
-  ======================  ========  ===================================================
-  array                   shape     meaning
-  ======================  ========  ===================================================
-  ``format``              ()        the string ``wftool.acc-series/1``
-  ``time_s``              (N,)      sample times in s, uniformly spaced
-  ``motor_hz``            (N, M)    motor fundamentals in Hz (M may be 0)
-  ``panels``              (P,)      panel labels in order, e.g. ``raw``, ``filtered``
-  ``titles``              (P,)      panel titles (optional)
-  ``acc_<label>_g``       (N, 3)    acceleration in g, one array per label
-  ======================  ========  ===================================================
-
-The STFT is the paper's: 0.2 s Hann window, 50 % overlap, power spectral density per
-axis; the panels share one colour scale so before and after compare directly.
+    series = read_series(Path("run"))
+    draw(series, spectrogram(series, "sum"), Path("fig4.png"))
 """
 
 from __future__ import annotations
@@ -106,7 +87,7 @@ def read_series(path: Path) -> AccSeries:
 
 
 def write_series(path: Path, time_s: np.ndarray, motor_hz: np.ndarray, panels: list[Panel]) -> None:
-    """Write PANELS in the .npz series format (see the module docstring)."""
+    """Write PANELS in the .npz series format (docs/analysis.md)."""
     arrays = {
         "format": np.array(SERIES_FORMAT),
         "time_s": np.asarray(time_s, dtype=np.float64),
@@ -117,7 +98,8 @@ def write_series(path: Path, time_s: np.ndarray, motor_hz: np.ndarray, panels: l
     for panel in panels:
         arrays[f"acc_{panel.label}_g"] = np.asarray(panel.acc_g, dtype=np.float32)
     with open(path, "wb") as handle:
-        np.savez_compressed(handle, **arrays)
+        # numpy's stubs read the arrays' names as its own keywords (allow_pickle)
+        np.savez_compressed(handle, **arrays)  # type: ignore[arg-type]
 
 
 def _read_npz(path: Path) -> AccSeries:
@@ -158,7 +140,7 @@ def _read_npz(path: Path) -> AccSeries:
 
 def _read_recording(path: Path) -> AccSeries:
     """The recording's frames, decoded from its raw bytes by the columnar decoder."""
-    from wftool.verify.recording import RecordingReader, recording_columns
+    from wftool.recording.reader import RecordingReader, recording_columns
 
     recording = RecordingReader(path)
     run = recording_columns(recording)
@@ -244,6 +226,7 @@ def spectrogram(series: AccSeries, axis: str = "sum") -> Spectrogram:
                 mode="psd",
             )
             total = power if total is None else total + power
+        assert total is not None  # every axis mode has a channel
         powers.append(total)
     return Spectrogram(frequencies, times + series.time_s[0], np.stack(powers), axis)
 
@@ -311,6 +294,7 @@ def draw(series: AccSeries, spec: Spectrogram, out: Path) -> None:
         f"{OVERLAP:.0%} overlap, {series.sample_rate_hz:.0f} Hz) — {Path(series.source).name}",
         fontsize=10,
     )
+    assert image is not None  # a series has a panel
     figure.colorbar(image, ax=list(axes), label="PSD (dB re 1 g²/Hz)")
     try:
         figure.savefig(out, dpi=120)

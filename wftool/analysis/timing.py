@@ -1,23 +1,6 @@
-"""Table 1 and Figs. 2–3: how regularly samples reach the OBC, FSP against the MSP baseline.
-
-Per recording, the intervals between consecutive samples, on the best clock each has:
-
-- FSP (a `verify --record` recording, or a raw capture of the FSP port's bytes): the FC's
-  capture times of consecutive frames (`time_us`, from the columnar decoder). They are the
-  FC's own timestamps, sent with the samples.
-- MSP (a `wftool record msp` recording): the reception times of consecutive MSP_RAW_IMU
-  replies on the OBC clock, which is all stock MSP gives.
-
-Statistics, in µs: the expected interval (FSP: the rate `fsp_rate_hz` gives at the FC's
-PID looptime, as the recording keeps it; MSP: the rate the IMU was polled at), mean, median,
-P1, P99 and the P99 − P1 spread. Percentiles are NumPy's "lower" method, a value that
-occurred, the rule of `verify`'s interval histograms, so both agree on the same run.
-
-**Segments.** A recording is cut at each reconnection, each FC reset (FSP epochs) and each
-gap: an interval longer than max(`GAP_MIN_S`, `GAP_INTERVALS` × the expected interval, or
-the median without one). An interval across a cut is not one between samples of one
-stream. The table row is the **longest segment**, and says so; the JSON lists every segment
-with its own statistics.
+"""Table 1 and Figs. 2–3: how regularly samples reach the OBC, FSP (the FC's capture times)
+against the MSP baseline (reception times), per recording and its longest segment
+(docs/analysis.md).
 """
 
 from __future__ import annotations
@@ -26,7 +9,7 @@ import json
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Final
 
 import numpy as np
 
@@ -36,13 +19,15 @@ from wftool.errors import UsageError
 from wftool.fc.msp import Cmd
 from wftool.fsp.columns import StateColumns, decode_columns
 from wftool.fsp.packets import SEQ_MODULUS
-from wftool.verify import msp_recording, recording
+from wftool.recording import msp as msp_recording
+from wftool.recording import reader as recording
+from wftool.recording.events import EVENT_TOPIC
 from wftool.verify.monitor import IntervalSummary
 
 GAP_MIN_S = 0.2
 GAP_INTERVALS = 50
 """An interval longer than this many expected intervals (and than `GAP_MIN_S`) is a gap."""
-PERCENTILE_METHOD = "lower"
+PERCENTILE_METHOD: Final = "lower"
 _MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
@@ -57,7 +42,7 @@ def interval_stats(deltas_us: np.ndarray) -> IntervalSummary:
     return IntervalSummary(int(deltas.size), mean, float(p1), float(median), float(p99))
 
 
-def stats_json(stats: IntervalSummary) -> dict[str, float]:
+def stats_json(stats: IntervalSummary) -> dict[str, float | None]:
     return {
         "intervals": stats.count,
         "mean_us": stats.mean_us,
@@ -177,7 +162,7 @@ def read_samples(path: Path) -> Samples:
 
 def _recording_samples(path: Path) -> Samples:
     topics = recording.recording_topics(path)
-    if recording.EVENT_TOPIC in topics:
+    if EVENT_TOPIC in topics:
         reader = recording.RecordingReader(path)
         columns = recording.recording_columns(reader)
         if not len(columns):
@@ -208,7 +193,7 @@ def _recording_samples(path: Path) -> Samples:
     else:
         raise UsageError(
             f"{path} is an MCAP file but no wftool recording (it has no "
-            f"{recording.EVENT_TOPIC} or {msp_recording.EVENT_TOPIC})"
+            f"{EVENT_TOPIC} or {msp_recording.EVENT_TOPIC})"
         )
     if reader.cut is not None:
         samples.notes.append(f"the recording is {reader.cut.describe()}; analysed what it holds")
@@ -376,8 +361,8 @@ def table_rows(series: list[TimingSeries], paper: bool = False) -> list[dict[str
             continue
         shown = [_published(figure) for figure in published.figures().values()]
         rate = _published(published.mean_us, lambda mean_us: 1e6 / mean_us)
-        values = (f"{published.protocol}: the paper", published.setup, "—", *shown, rate)
-        rows.append(dict(zip(COLUMNS, values)))
+        paper_row = (f"{published.protocol}: the paper", published.setup, "—", *shown, rate)
+        rows.append(dict(zip(COLUMNS, paper_row)))
     return rows
 
 

@@ -1,18 +1,5 @@
-"""Clock estimators against known truth: a simulated FC → OBC link and the errors it shows.
-
-The simulator knows the true mapping from FC time to OBC time (a skew of up to ±100 ppm that
-drifts slowly), draws each packet's one-way delay from a model (a fixed minimum, exponential
-queueing, late bursts, reads that stamp every packet they carry with the read's time, a
-dropout, a `micros()` wrap), and unwraps the FC times with the decoder's own `FcClock`.
-
-Error is measured two ways (spec §8). One-way, the minimum transport delay `d_min` cannot be
-told from the offset, so what an estimator can find is the lower envelope — the true
-capture instant on the OBC clock plus `d_min`: the *envelope* error is measured against it.
-The *absolute* error is against the true capture instant itself; it includes `d_min`, which
-only two-way timing or an external reference can remove.
-
-`score` takes any trace with truth, so ground truth from elsewhere (the virtual FC) can be
-scored the same way.
+"""`wftool bench clock`: the clock estimators against known truth, on a simulated FC → OBC link
+(delay models, skew, wraps); the envelope and the absolute error (docs/bench.md).
 """
 
 from __future__ import annotations
@@ -25,7 +12,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from wftool.bench.decode import FRAME_PERIOD_US
-from wftool.fsp.clock import U32, ClockEstimator, FcClock, make_estimator
+from wftool.fsp.clock import U32, ClockEstimator, FcClock
+from wftool.fsp.estimators import make_estimator
 
 PACKET_PERIOD_US = 2 * FRAME_PERIOD_US
 """Two frames per packet at 1049 Hz: ~525 packets/s (spec §7)."""
@@ -246,7 +234,7 @@ class ModelSummary:
 
 GOAL_RMS_S = 50e-6
 GOAL_RATIO = 10.0
-"""The goal of issue 10: envelope RMS ≤ 50 µs and ≤ 1/10 of the reference's, on every model."""
+"""The envelope estimator's goal: RMS ≤ 50 µs and ≤ 1/10 of the reference's, on every model."""
 REFERENCE = "kalman"
 
 

@@ -1,14 +1,5 @@
-"""Decoder throughput: bytes in → frames out on one core, and memory over a long replay.
-
-The stream is a synthetic flight (E1 on, moving values) written once to a capture file;
-each replay reads that file in chunks, as `wftool replay` or an OBC reading a UART would,
-and feeds them with real-time arrival stamps. Reading, `StateDecoder.feed` and walking
-the frames are timed. Memory is `tracemalloc`'s peak, in runs of their own.
-
-The columnar path (`fsp.columns`) decodes the same file, with the same reads and stamps,
-into arrays, and is checked (untimed) to hold exactly the per-frame decoder's FC and OBC
-times; the reference from outside is pymavlink parsing a stream of as many `HIGHRES_IMU`
-messages (one IMU sample each) made by its own encoder.
+"""`wftool bench decode`: decoder throughput (bytes in, frames out, on one core) and memory
+over a long replay, per-frame and columnar, against pymavlink (docs/bench.md).
 """
 
 from __future__ import annotations
@@ -28,6 +19,7 @@ from pathlib import Path
 from wftool.errors import UsageError
 from wftool.fsp import SensorFrame, StateDecoder, StatePacket, StreamStats
 from wftool.fsp.encoder import encode_state
+from wftool.fsp.packets import rc_values
 
 REALTIME_PACKETS_PER_S = 525  # 1049 Hz of frames, two per packet (spec §7)
 FRAME_PERIOD_US = 953
@@ -120,10 +112,12 @@ class RealisticFlight:
         swing = 3000 * math.sin(2 * math.pi * 0.4 * t)  # the roll manoeuvre, felt by motors
         rpm = [round(18000 + swing * (-1) ** m + gauss(0, RPM_NOISE)) for m in range(4)]
         vbat = round(1620 - 0.05 * t + gauss(0, 0.7))
+        (ax, ay, az), (gx, gy, gz), (qw, qx, qy, qz) = acc, gyro, attitude
+        m1, m2, m3, m4 = rpm
         return SensorFrame(
-            t_us % 2**32, tuple(acc), ACC_1G, GYRO_SCALE, tuple(gyro), tuple(attitude),
-            tuple(self._rc), tuple(rpm), vbat,
-        )  # type: ignore[arg-type]  # fmt: skip
+            t_us % 2**32, (ax, ay, az), ACC_1G, GYRO_SCALE, (gx, gy, gz), (qw, qx, qy, qz),
+            rc_values(self._rc), (m1, m2, m3, m4), vbat,
+        )  # fmt: skip
 
 
 STREAMS = ("realistic", "sweeping")

@@ -1,18 +1,5 @@
-"""True clock error and true latency on the virtual FC, against the SITL's own clock.
-
-The patched SITL logs the true FC→host mapping (`wftool.sitl.truth`), and the host's
-CLOCK_MONOTONIC is the OBC clock here, so every FC time has a known true OBC instant. The
-bench streams from a fresh virtual FC for the given time with a real reader and decoder —
-sending commands at `command_rate_hz` and, with `time_reply`, having the FC answer them — and
-measures:
-
-- the true one-way latency: from a frame's true sample instant, and from its packet's true
-  send instant, to the decoded frame being available (right after `feed` returns);
-- each clock estimator's true error, replaying exactly the bytes and commands of the run
-  through a decoder per estimator: every frame's `obc_time` against its true sample instant
-  (absolute), and for one-way estimators also against the instant plus the true minimum
-  delay (what one-way timing can find, spec §8); the two-way estimator's share of frames
-  whose true error lies within the uncertainty it reports.
+"""`wftool bench latency`: true clock error and true latency on the virtual FC, judged against
+the SITL's own clock (`wftool.sitl.truth`; docs/bench.md).
 """
 
 from __future__ import annotations
@@ -25,10 +12,11 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TypeVar
 
 from wftool.bench.clock import _p99_abs, _rms
-from wftool.fsp import FspReader, StateDecoder
-from wftool.fsp.clock import ESTIMATORS
+from wftool.fsp import CommandPacket, FspReader, StateDecoder
+from wftool.fsp.estimators import ESTIMATORS
 from wftool.fsp.schedule import DEFAULT_RATE_HZ
 from wftool.fsp.twoway import RoundTrip, TwoWayClockEstimator
 from wftool.sitl.session import VirtualFcSession
@@ -97,12 +85,15 @@ class LatencyBenchResult:
     """Times the SITL fell more than 50 ms behind the host clock and re-anchored."""
 
 
+T = TypeVar("T")
+
+
 @dataclass
 class _Capture:
     """What the live run saw: its events in order, and each read's packets' FC times."""
 
-    events: list[tuple[str, float, object]] = field(default_factory=list)
-    """("bytes", read time, data) and ("sent", OBC stamp, (seq, tx_time_us))."""
+    events: list[tuple[float, bytes | CommandPacket]] = field(default_factory=list)
+    """(read time, the bytes read) and (OBC stamp, the command sent)."""
     reads: list[tuple[float, float, list[int], list[int]]] = field(default_factory=list)
     """(read time, decoded time, packet send FC times, frame FC times) per read."""
 
@@ -119,7 +110,7 @@ def _capture(
         while (t := now()) < end:
             if command_rate_hz and t >= next_command:
                 packet = reader.send_command(COMMAND, now=t)
-                capture.events.append(("sent", t, (packet.seq, packet.tx_time_us)))
+                capture.events.append((t, packet))
                 # a random phase: an OBC whose commands kept a fixed phase to the FC's FSP task
                 # (only a SITL, sharing the host's clock, does) would always wait as long for it
                 next_command = max(next_command + rng.uniform(0.5, 1.5) / command_rate_hz, t)
@@ -129,12 +120,18 @@ def _capture(
             read_at = now()
             packets = decoder.feed(data, read_at)
             decoded_at = now()
-            capture.events.append(("bytes", read_at, data))
+            capture.events.append((read_at, data))
             if packets:
-                sends = [p.time_us for p in packets]
-                frames = [f.time_us for p in packets for f in p.frames]
-                capture.reads.append((read_at, decoded_at, sends, frames))  # type: ignore[arg-type]
+                sends = [_decoded(p.time_us) for p in packets]
+                frames = [_decoded(f.time_us) for p in packets for f in p.frames]
+                capture.reads.append((read_at, decoded_at, sends, frames))
     return capture
+
+
+def _decoded(value: T | None) -> T:
+    """A time the decoder sets on every packet and frame it delivers (with arrival times)."""
+    assert value is not None
+    return value
 
 
 def _replay(
@@ -156,13 +153,12 @@ def _replay(
     covered = 0
     uncertainties: list[float] = []
     first = lock = math.nan
-    for kind, t, payload in capture.events:
-        if kind == "sent":
+    for t, payload in capture.events:
+        if isinstance(payload, CommandPacket):
             if matcher is not None:
-                seq, tx_time_us = payload  # type: ignore[misc]
-                matcher.sent(seq, tx_time_us, t)
+                matcher.sent(payload.seq, payload.tx_time_us, t)
             continue
-        packets = decoder.feed(payload, t)  # type: ignore[arg-type]
+        packets = decoder.feed(payload, t)
         if not packets:
             continue
         if first != first:
@@ -174,7 +170,7 @@ def _replay(
             lock = t - first
         for packet in packets:
             for frame in packet.frames:
-                error = frame.obc_time - true_obc(frame.time_us)  # type: ignore[operator]
+                error = _decoded(frame.obc_time) - true_obc(_decoded(frame.time_us))
                 errors.append(error)
                 if two_way is not None:
                     covered += abs(error) <= state.uncertainty_s
@@ -199,7 +195,7 @@ def run_latency_bench(
     time_reply: bool = True,
     command_rate_hz: float = 50.0,
 ) -> LatencyBenchResult:
-    """Stream from a fresh virtual FC for `seconds`; see the module docstring."""
+    """Stream from a fresh virtual FC for `seconds` (what it measures: docs/bench.md)."""
     with tempfile.TemporaryDirectory(prefix="wftool-bench-") as scratch:
         session = VirtualFcSession(
             binary, Path(scratch) / "fc", rate_hz=rate_hz, port_base=None,

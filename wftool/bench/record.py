@@ -1,27 +1,5 @@
-"""What recording costs: bytes and CPU per frame of the JSON and ROS 2 MCAP formats.
-
-A synthetic flight of `bench decode` (E1 on, ~1049 frames/s; `decode.STREAMS`: realistic
-motion and sensor noise, or every value sweeping) is fed through the real verify path, as
-the live loop feeds it: one read per `chunk_bytes` with real-time arrival stamps, each read
-recorded as an event, its packets decoded by a `StreamMonitor` and recorded with a health
-snapshot every 100 ms. The same replay without a recorder is the reference: a format's CPU
-is its run's process time minus the reference's, so it counts the recorder alone
-(encoding, MCAP chunks, zstd, file writes).
-Sizes are the files on disk after chunk compression, metadata.yaml included.
-
-Reading back is timed too, in frames/s: `replay` (the recorded events through the
-per-frame decoder and the monitor) and `recording_columns` (the events into NumPy columns,
-with OBC times; needs the analysis extra).
-
-The recorder's CPU counts its writer process (`wftool.verify.mcapprocess`) too: the CPU
-of the children this process waited for is added to its own.
-
-Stalls: what recording costs the thread that reads and stamps. The ROS 2 recording's
-messages are written again, one read's messages at a time, paced by their log times
-(`STALL_SPEED` times real time), by the writer process and by the in-process `McapFile`
-(what recordings used before, written from the reading thread); a read's stall is the
-wall time its messages' `add_message` calls took. The two alternate, `repeat` times; the
-least worst case counts for each.
+"""`wftool bench record`: what recording costs (bytes and CPU per frame of each format, how
+fast it reads back) and the stalls it gives the reading thread (docs/bench.md).
 """
 
 from __future__ import annotations
@@ -37,23 +15,23 @@ from pathlib import Path
 from mcap.reader import make_reader
 
 from wftool.bench.decode import REALTIME_PACKETS_PER_S, STREAMS, write_capture
-from wftool.verify.mcapfile import McapFile
-from wftool.verify.mcapprocess import McapProcess
+from wftool.recording.events import Event
+from wftool.recording.mcapfile import McapFile
+from wftool.recording.mcapprocess import McapProcess
+from wftool.recording.reader import recording_columns
+from wftool.recording.recorder import RECORD_FORMATS, Recorder
+from wftool.recording.rosbag import bag_file
+from wftool.verify.live import Dispatcher
 from wftool.verify.monitor import StreamMonitor
-from wftool.verify.recording import (
-    RECORD_FORMATS,
-    Event,
-    Recorder,
-    recording_columns,
-    replay_recording,
-)
-from wftool.verify.ros2 import HealthSampler
-from wftool.verify.rosbag import bag_file
+from wftool.verify.session import replay_recording
 
 PACKET_BYTES = 118  # a 116-byte state packet, COBS-framed
 STALL_SPEED = 4.0
 """The stall replay's pace, times real time (either writer keeps up with it)."""
-STALL_WRITERS = {"writer process": McapProcess, "in-process McapFile": McapFile}
+STALL_WRITERS: dict[str, type[McapProcess] | type[McapFile]] = {
+    "writer process": McapProcess,
+    "in-process McapFile": McapFile,
+}
 
 
 @dataclass(frozen=True)
@@ -114,25 +92,16 @@ class RecordBenchResult:
 def _replay(capture: bytes, chunk_bytes: int, recorder: Recorder | None) -> tuple[float, int]:
     """CPU time of one replay (its writer process's included), and the frames decoded."""
     monitor = StreamMonitor("bench")
-    sampler = HealthSampler(monitor)
+    dispatch = Dispatcher(monitor, [recorder] if recorder is not None else []).event
     step = chunk_bytes / (REALTIME_PACKETS_PER_S * PACKET_BYTES)
     t = 1000.0
     start = _cpu_s()
-    monitor.connected(t)
-    if recorder is not None:
-        recorder.event(Event("connected", t))
+    dispatch(Event("connected", t))
     for offset in range(0, len(capture), chunk_bytes):
         t += step
-        data = capture[offset : offset + chunk_bytes]
-        if recorder is None:
-            monitor.feed(data, t)
-            continue
-        recorder.event(Event("bytes", t, data))
-        packets = monitor.feed(data, t)
-        recorder.packets(packets, sampler.sample(packets, t))
-    monitor.disconnected(t)
+        dispatch(Event("bytes", t, capture[offset : offset + chunk_bytes]))
+    dispatch(Event("disconnected", t))
     if recorder is not None:
-        recorder.event(Event("disconnected", t))
         recorder.close()
     return _cpu_s() - start, monitor.summary().frames
 
@@ -149,6 +118,7 @@ def _reads(recording: Path) -> tuple[list[tuple[str, str, bytes, str, str]], lis
     with open(recording, "rb") as handle:
         reader = make_reader(handle)
         summary = reader.get_summary()
+        assert summary is not None  # wftool's writers end a file with its summary
         ids = sorted(summary.channels)
         channels = []
         for channel_id in ids:
@@ -199,7 +169,9 @@ def _stalls(
 def _stall_figures(name: str, stalls: list[float], path: Path) -> StallFigures:
     ordered = sorted(stalls)
     with open(path, "rb") as handle:
-        chunks = len(make_reader(handle).get_summary().chunk_indexes)
+        summary = make_reader(handle).get_summary()
+    assert summary is not None  # both writers end a file with its summary
+    chunks = len(summary.chunk_indexes)
     return StallFigures(
         name,
         len(ordered),
@@ -257,7 +229,8 @@ def run_record_bench(
                 sizes[name] = _size(path)
                 replayed, columns = _read_back(path, frames, numpy)
                 replay_rate[name] = max(replay_rate[name], replayed)
-                columns_rate[name] = None if columns is None else max(columns_rate[name], columns)
+                best = columns_rate[name] or 0.0
+                columns_rate[name] = None if columns is None else max(best, columns)
         channels, reads = _reads(bag_file(scratch / "run-ros2"))
         stalls: dict[str, StallFigures] = {}
         for run in range(repeat):

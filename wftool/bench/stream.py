@@ -1,12 +1,5 @@
-"""The stream on the virtual FC: how fast it holds, what verify costs, how soon a frame is out.
-
-For each `fsp_rate_hz` the patched SITL is started fresh with FSP configured and a real
-verify run (`VerifySession`, with the dashboard rendered four times a second into a
-discarded console) runs for the given time. Figures per rate: frames/s against the frames/s
-the FC should send (from `fsp_rate_hz` and the PID looptime it reports over MSP), transport
-loss, FC-side drops, rejections, and the FC-sample and OBC-arrival intervals (P1/P50/P99).
-At the first rate also the CPU share of this process (the SITL is another process) and the
-decode latency from a read returning to its frames delivered.
+"""`wftool bench stream`: the stream on the virtual FC at each rate: how fast it holds, what
+verify costs, how soon a frame is out (docs/bench.md).
 """
 
 from __future__ import annotations

@@ -19,7 +19,7 @@ from wftool.verify.monitor import IntervalSummary
 
 out = Console(highlight=False, width=None if sys.stdout.isatty() else 200)
 ROS2_BYTES_PER_FRAME_GOAL = 94.0
-"""Issue 13's goal for a ROS 2 recording (what the JSON format measured when it was set)."""
+"""The size goal of a ROS 2 recording: what the JSON format measured when it was set."""
 
 
 @click.group("bench")
@@ -110,6 +110,7 @@ def bench_decode(minutes: float, chunk: int, tunnel: bool, repeat: int) -> None:
         "vs per-frame: the per-frame run that works out the same times"
     )
     stats = result.runs[PER_FRAME_ALIGNED][0].stats
+    assert stats is not None  # the per-frame runs count
     out.print(
         f"columnar and per-frame totals agree: {'yes' if result.agree else 'NO'} "
         f"({stats.packets:,} packets, {stats.errors} rejected, {stats.lost_frames} lost, "
@@ -280,7 +281,7 @@ def bench_clock(seconds: float, seeds: int, drift: float, repeat: int) -> None:
     identify); "absolute" is against the true capture instant (includes that delay).
     """
     from wftool.bench.clock import GOAL_RATIO, GOAL_RMS_S, MIN_DELAY_S, REFERENCE, run_clock_bench
-    from wftool.fsp.clock import ONE_WAY_ESTIMATORS
+    from wftool.fsp.estimators import ONE_WAY_ESTIMATORS
 
     result = run_clock_bench(ONE_WAY_ESTIMATORS, seeds=range(1, seeds + 1), seconds=seconds,
                              drift_ppm_per_min=drift, repeat=repeat)  # fmt: skip
@@ -369,14 +370,14 @@ def bench_record(seconds: float, chunk: int, repeat: int, streams: tuple[str, ..
         )
         for column in ("writer", "reads", "chunks", "worst ms", "P99.9 ms", "reads > 1 ms"):
             stalls.add_column(column, justify="left" if column == "writer" else "right")
-        for figures in result.stalls:
+        for stall in result.stalls:
             stalls.add_row(
-                figures.name,
-                f"{figures.reads:,}",
-                f"{figures.chunks}",
-                f"{1e3 * figures.worst_s:.2f}",
-                f"{1e3 * figures.p999_s:.2f}",
-                f"{figures.over_1ms}",
+                stall.name,
+                f"{stall.reads:,}",
+                f"{stall.chunks}",
+                f"{1e3 * stall.worst_s:.2f}",
+                f"{1e3 * stall.p999_s:.2f}",
+                f"{stall.over_1ms}",
             )
         out.print(stalls)
         process, in_process = result.stalls
@@ -386,7 +387,7 @@ def bench_record(seconds: float, chunk: int, repeat: int, streams: tuple[str, ..
             f"({in_process.chunks} chunks); target: no chunk stalls the reading thread"
         )
     out.print(
-        f"targets (issue 13): ROS 2 <= {ROS2_BYTES_PER_FRAME_GOAL:g} B/frame and no larger "
+        f"targets: ROS 2 <= {ROS2_BYTES_PER_FRAME_GOAL:g} B/frame and no larger "
         "than JSON; recording <= 5 % of one core at 1 kHz"
     )
 

@@ -1,6 +1,6 @@
 """Commands: recordings other than the FSP stream's (record msp).
 
-`wftool.fc.msp_poller` polls, `wftool.verify.msp_recording` records; this module parses
+`wftool.fc.msp_poller` polls, `wftool.recording.msp` records; this module parses
 options and prints what the run asked and got.
 """
 
@@ -78,7 +78,7 @@ def record_msp_command(
     FC answers one MSP command per serial task run (serial_update_rate_hz), so what it
     cannot answer shows as skipped requests. Ctrl-C ends the run; the recording is kept.
     """
-    from wftool.verify.msp_recording import record_msp
+    from wftool.recording.msp import record_msp
 
     schedule = parse_schedule(schedule_items) if schedule_items else PAPER_SCHEDULE
     path = out_path or Path(time.strftime("msp-%Y%m%d-%H%M%S"))

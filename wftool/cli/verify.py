@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Callable
+from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
@@ -16,16 +17,15 @@ from rich.live import Live
 from wftool.errors import UsageError
 from wftool.fsp import DEFAULT_BAUDRATE, ESTIMATORS
 from wftool.fsp.schedule import RATE_HZ_MAX, RATE_HZ_MIN
-from wftool.verify.criteria import Criteria
+from wftool.recording.recorder import RECORD_FORMATS
+from wftool.verify.criteria import Criteria, criteria_for
 from wftool.verify.dashboard import render
 from wftool.verify.foxglove import DEFAULT_HOST as FOXGLOVE_HOST
 from wftool.verify.foxglove import DEFAULT_PORT as FOXGLOVE_PORT
 from wftool.verify.live import check_duration
-from wftool.verify.recording import RECORD_FORMATS
 from wftool.verify.session import (
     VerifyResult,
     VerifySession,
-    criteria_for,
     fc_frame_rate_hz,
     replay,
 )
@@ -54,18 +54,23 @@ def _limit(_ctx: click.Context, param: click.Parameter, value: float) -> float:
 
 criteria_options = _options(
     click.option("--expected-rate", type=float, help="Frame rate the FC should stream (Hz)."),
-    click.option("--min-rate", type=float, help="Minimum frame rate [95 % of expected]."),
-    click.option("--max-spread-ms", type=float, help="Max FC-interval P99−P1 [half a period]."),
-    click.option("--max-loss", type=float, default=Criteria.max_loss_pct, show_default=True,
-                 help="Max transport loss, % of frames."),
-    click.option("--max-fc-drops", type=float,
+    # Each limit's destination is its `Criteria` field: `criteria_from` passes them on as
+    # they are.
+    click.option("--min-rate", "min_rate_hz", type=float,
+                 help="Minimum frame rate [95 % of expected]."),
+    click.option("--max-spread-ms", "max_spread_ms", type=float,
+                 help="Max FC-interval P99−P1 [half a period]."),
+    click.option("--max-loss", "max_loss_pct", type=float, default=Criteria.max_loss_pct,
+                 show_default=True, help="Max transport loss, % of frames."),
+    click.option("--max-fc-drops", "max_drops_pct", type=float,
                  help="Max frames the FC dropped (queue full), % of frames "
                  f"[{Criteria.max_drops_pct:g}]."),
-    click.option("--max-errors", type=click.IntRange(0), default=Criteria.max_errors,
-                 show_default=True,
+    click.option("--max-errors", "max_errors", type=click.IntRange(0),
+                 default=Criteria.max_errors, show_default=True,
                  help="Max rejected chunks (COBS, length, version, CRC) and outlier packets."),
-    click.option("--max-outage", type=click.FloatRange(0), default=Criteria.max_outage_s,
-                 show_default=True, metavar="SECONDS", callback=_limit,
+    click.option("--max-outage", "max_outage_s", type=click.FloatRange(0),
+                 default=Criteria.max_outage_s, show_default=True, metavar="SECONDS",
+                 callback=_limit,
                  help="Max time the port may be gone during the run, all outages together "
                  "(0: a reconnect fails the run)."),
     click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout."),
@@ -118,15 +123,8 @@ def expected_rate_from(
 
 def criteria_from(uplink: bool, **options: Any) -> Criteria:
     """The criteria the `criteria_options` ask for."""
-    return criteria_for(
-        uplink=uplink,
-        min_rate_hz=options["min_rate"],
-        max_spread_ms=options["max_spread_ms"],
-        max_loss_pct=options["max_loss"],
-        max_drops_pct=options["max_fc_drops"],
-        max_errors=options["max_errors"],
-        max_outage_s=options["max_outage"],
-    )
+    limits = {field.name for field in fields(Criteria)} - {"uplink"}
+    return criteria_for(uplink=uplink, **{name: options[name] for name in limits})
 
 
 def _finish(result: VerifyResult, as_json: bool) -> None:

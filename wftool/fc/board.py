@@ -14,12 +14,10 @@ import enum
 import time
 from typing import Protocol
 
-import serial
-
 from wftool.errors import MspError, PortError, UsageError
 from wftool.fc.cli_session import CliSession, cli_is_open
 from wftool.fc.msp import MspClient
-from wftool.fc.transport import STM32_VCP, open_port, usb_ports
+from wftool.link.transport import STM32_VCP, Port, open_port, usb_ports
 from wftool.progress import Log, quiet
 
 RESET_GRACE_S = 0.5
@@ -32,7 +30,8 @@ reset instead."""
 
 
 class Board(Protocol):
-    url: str
+    @property
+    def url(self) -> str: ...
 
     def wait_back(self, timeout: float = ...) -> None:
         """Block until the FC answers MSP again after a reset."""
@@ -122,7 +121,7 @@ def wait_after_drop(board: Board, log: Log = quiet) -> bool:
             return False
 
 
-def _exit_cli(board: Board, link: serial.SerialBase, log: Log) -> None:
+def _exit_cli(board: Board, link: Port, log: Log) -> None:
     log(
         "the FC was sitting in its CLI (a session was interrupted or lost its link); "
         "leaving it with `exit`, which reboots it and drops any unsaved change"
@@ -135,7 +134,7 @@ def _exit_cli(board: Board, link: serial.SerialBase, log: Log) -> None:
         wait_after_drop(board, log)
 
 
-def _probe(url: str) -> tuple[FcState, serial.SerialBase | None]:
+def _probe(url: str) -> tuple[FcState, Port | None]:
     """The FC's state on URL; for an FC in its CLI, with the link still open to leave it."""
     try:
         link = open_port(url, timeout=0.05)

@@ -1,23 +1,9 @@
-"""A session with Betaflight's text CLI: enter, run commands, read settings, save or leave.
+"""A session with Betaflight's text CLI: enter, run commands, read settings, save or leave
+(the CLI's ways this is built on: docs/design.md).
 
-Betaflight facts (2025.12 `cli.c`, `msp_serial.c`) this is built on:
-
-- `#` on an MSP port only *requests* the CLI; it opens after 100 ms without input and then
-  prints a banner and the `# ` prompt. Bytes sent before that are swallowed, which is why a
-  command sent right after `#` gets lost. So: send `#` plus a newline (harmless in either
-  state: in a CLI already open it just re-prints the prompt) and wait for the prompt.
-- Errors read `###ERROR IN <command>: <message>###`, e.g. `INVALID NAME: foo`,
-  `INVALID VALUE` followed by the line `Allowed range: 0 - 1000`.
-- Every way out reboots: `save` (persist, then reboot) and `exit` (reboot, "unsaved changes
-  lost"). `exit noreboot` keeps running with the unsaved changes live in RAM and arming
-  blocked until the next reboot; wftool uses it only to hand the port back to MSP briefly.
-- The CLI stays open when the link drops (USB unplugged, a killed wftool): the FC then
-  ignores MSP until someone leaves its CLI. It takes printable ASCII only (other bytes are
-  dropped) and at most 255 characters a line (the rest is dropped); `#` starts a comment.
-  Ctrl-L redraws the prompt and DEL erases one character of the line being typed; on an
-  MSP port both are ignored (neither is `#` nor a possible reboot character, 48-126).
-- `diff all` ends with `# save configuration`, then `save` and the prompt; its comment
-  lines start with `# `, which looks like the prompt when the output pauses there.
+    cli = CliSession.open("socket://127.0.0.1:5761")   # in the CLI once it answers
+    print(cli.get("gyro_lpf1_static_hz"))
+    cli.exit()   # reboots: unsaved changes are dropped
 """
 
 from __future__ import annotations
@@ -26,10 +12,8 @@ import re
 import time
 from dataclasses import dataclass
 
-import serial
-
 from wftool.errors import CliCommandError, PortError, ProtocolError
-from wftool.fc.transport import open_port, port_errors
+from wftool.link.transport import Port, open_port, port_errors
 
 PROMPT = b"\r\n# "
 SETTLE_S = 0.05
@@ -148,7 +132,7 @@ _CONSTRAINT_HEADS = {"Allowed range", "Allowed values", "Array length", "String 
 class CliSession:
     """The CLI on an open link. Enter with `enter()`; leave with `save()` or `exit()`."""
 
-    def __init__(self, link: serial.SerialBase, *, timeout: float = 5.0) -> None:
+    def __init__(self, link: Port, *, timeout: float = 5.0) -> None:
         self.link = link
         self.timeout = timeout
         self.url = link.port or "link"
@@ -311,7 +295,7 @@ class CliSession:
         self.link.close()
 
 
-def cli_is_open(link: serial.SerialBase) -> bool:
+def cli_is_open(link: Port) -> bool:
     """Whether the FC on LINK sits in its CLI (and so ignores MSP): an open CLI answers
     `REDRAW` with its prompt; MSP ignores it. Whatever was half typed is erased."""
     url = link.port or "link"

@@ -1,17 +1,5 @@
-"""`wftool configure fsp`: everything FSP needs, planned from what the FC reports.
-
-- `serial UART<n> 524288 <baud> …`: FSP (serial function 1<<19 in the patched firmware) gets
-  the port to itself — a byte stream at ~1 kHz cannot share a UART with MSP, GPS or a
-  receiver — and its baud rate rides in the line's MSP-baud field. What it replaces is
-  reported. Note: stock `serial` accepts only 9600–1000000 in that field.
-- The receiver: FSP's uplink feeds Betaflight's MSP receiver, so feature RX_MSP must be the
-  receiver. The 2025.12 CLI cannot name RX_MSP, so it is switched over MSP.
-- `dshot_bidir = ON` (motor RPM for the RPM filters), the accelerometer RPM-filter defaults,
-  `fsp_rate_hz`, and `serial_update_rate_hz` at the highest value the FC allows unless told
-  otherwise (it sets how often the serial task drains the uplink and answers MSP; the stock
-  default is 100 Hz).
-- On request, `fsp_time_reply` (two-way timing, spec §10): the FC answers each command with
-  a time reply. Left as it is unless asked for.
+"""`wftool configure fsp`: everything FSP needs (its UART, the MSP receiver, bidirectional
+DShot, the filter defaults, the rates), planned from what the FC reports (docs/design.md).
 """
 
 from __future__ import annotations

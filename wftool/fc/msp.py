@@ -14,11 +14,9 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-import serial
-
 from wftool.errors import MspError
-from wftool.fc.transport import open_port, port_errors
-from wftool.fsp.crc import DVB_S2_INIT, crc8
+from wftool.link.crc import DVB_S2_INIT, crc8
+from wftool.link.transport import Port, open_port, port_errors
 
 
 class MspVersion(enum.IntEnum):
@@ -163,7 +161,7 @@ class FrameReader:
         """The frames `data` completes, in order."""
         rx = self._rx
         rx += data
-        frames = []
+        frames: list[MspFrame] = []
         while True:
             try:
                 frame, used = decode_frame(bytes(rx))
@@ -284,7 +282,7 @@ class MspClient:
 
     def __init__(
         self,
-        link: serial.SerialBase,
+        link: Port,
         *,
         version: MspVersion = MspVersion.V2,
         timeout: float = 1.0,
@@ -298,7 +296,7 @@ class MspClient:
     def open(
         cls, url: str, *, version: MspVersion = MspVersion.V2, timeout: float = 1.0
     ) -> MspClient:
-        """Open `url` (see `wftool.fc.transport.open_port`) and talk MSP on it."""
+        """Open `url` (see `wftool.link.transport.open_port`) and talk MSP on it."""
         return cls(open_port(url, timeout=0.05), version=version, timeout=timeout)
 
     def close(self) -> None:

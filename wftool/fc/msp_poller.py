@@ -1,37 +1,9 @@
-"""Polling MSP on a fixed schedule: the stock-Betaflight baseline the paper compares FSP with.
+"""Polling MSP on a fixed schedule: the stock-Betaflight baseline the paper compares FSP with,
+each reply stamped on reception (how the FC answers, how this asks: docs/design.md).
 
     poller = MspPoller(open_port("socket://127.0.0.1:5761", timeout=0), PAPER_SCHEDULE)
     result = poller.run(duration_s=30, observer=recorder)
     print(result.commands[Cmd.RAW_IMU].replies, result.commands[Cmd.RAW_IMU].sent)
-
-Stock MSP gives the OBC nothing but replies, so each reply is stamped with the OBC's
-`time.monotonic()` when the read that completed it returned: a sample's time is its
-reception time. That is the baseline's whole timing story.
-
-**How the FC answers.** Betaflight serves MSP in its SERIAL task, which runs at
-`serial_update_rate_hz` (100 Hz stock, up to 2000). Each run takes at most ONE command per
-MSP port and answers it (`mspProcessPacket` in `msp_serial.c`: "process one command at a
-time so as not to block"); further requests wait in the port's receive buffer for later
-runs. So a port answers at most `serial_update_rate_hz` commands per second, whatever the
-OBC asks; the paper's schedule (RAW_IMU 1000 Hz, RC and ATTITUDE 100 Hz, ANALOG 10 Hz:
-1210 requests/s) asks for more than a 1 kHz SERIAL task can answer.
-
-**How this poller asks.** Each command has its own slots, `start + k / rate`. At each slot
-the request is written at once, without waiting for replies to earlier ones (a fixed
-schedule: the rates are the OBC's, as in the paper's baseline, and replies are stamped
-whenever they come), unless `window` requests are still unanswered: then it waits for room,
-the longest-waiting slot first, until its command's next slot comes; then it is *skipped*
-and counted. The window bounds the backlog in the FC: a receive buffer is small (256 bytes
-on an STM32 UART, 1400 on SITL's TCP UART) and both overwrite when full, so an unbounded
-pipeline would corrupt requests instead of queueing them. `window=1` is strict
-request-reply. A slot that passes while the poller is late (the OBC was busy) is *missed*
-and counted, never sent late: no catch-up bursts. `PollResult` says, per command, how many
-slots there were and how many requests were sent, skipped, missed and answered (sent +
-skipped + missed = slots).
-
-Replies come back in request order (one port, one command per task run), so each reply is
-matched to the oldest unanswered request for its command; requests it overtakes were lost.
-A request unanswered after `reply_timeout_s` is given up and frees its place in the window.
 """
 
 from __future__ import annotations
@@ -45,11 +17,9 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
-import serial
-
 from wftool.errors import UsageError
 from wftool.fc.msp import Cmd, FrameReader, MspFrame, MspVersion, encode_request
-from wftool.fc.transport import port_errors, read_within, selectable_fd
+from wftool.link.transport import Port, port_errors, read_within, selectable_fd
 
 DEFAULT_WINDOW = 4
 """Requests in flight at most: 36 bytes of MSP v2 requests (24 of v1), far below any FC
@@ -219,11 +189,11 @@ class PollResult:
 
 
 class MspPoller:
-    """Polls `schedule` on an open link (see the module docstring)."""
+    """Polls `schedule` on an open link (how: docs/design.md)."""
 
     def __init__(
         self,
-        link: serial.SerialBase,
+        link: Port,
         schedule: Sequence[PollRate] = PAPER_SCHEDULE,
         *,
         window: int = DEFAULT_WINDOW,

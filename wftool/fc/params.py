@@ -1,17 +1,6 @@
-"""The safe parameter workflow behind `wftool set`, `config apply`, `restore`, `configure fsp`.
-
-0. Before touching the FC: every command is one the CLI can carry (printable ASCII, one
-   line, not too long) and the backup directory is writable. An FC found sitting in its
-   CLI (an earlier session interrupted) is first taken out of it with `exit`.
-1. Back up `diff all` (plus the MSP feature mask), proven complete, before anything else.
-2. Validate every command with the FC: each `set` against the range/values `get NAME`
-   reports, `feature`/`serial` against the FC's own lists, profile switches by trying them.
-   Any problem → the FC reboots untouched and `ParameterError` lists every problem.
-3. Apply everything; if anything fails midway (the FC rejects a command, the link drops,
-   Ctrl-C), leave with `exit` (reboot, which drops every unsaved change) — nothing
-   persists. Only when all succeeded: `save`.
-4. Read every setting back after the reboot, for the before/after report. A `save` the FC
-   did not confirm (the link dropped) counts as saved only if the read-back says so.
+"""The safe parameter workflow behind `wftool set`, `config apply`, `restore`, `configure fsp`:
+back up, validate everything with the FC, apply all or nothing, read back (the steps:
+docs/design.md).
 """
 
 from __future__ import annotations
@@ -33,7 +22,7 @@ from wftool.fc.backup import check_backup_dir, feature_mask_of, write_backup
 from wftool.fc.board import Board, leave_open_cli, wait_after_drop
 from wftool.fc.cli_session import CliSession, Setting, line_problem
 from wftool.fc.msp import RECEIVER_FEATURES, MspClient
-from wftool.fc.transport import open_port
+from wftool.link.transport import open_port
 from wftool.progress import Log, quiet
 
 if sys.version_info >= (3, 11):
@@ -272,7 +261,7 @@ def take_backup(board: Board, backup_dir: Path, log: Log = quiet) -> Path:
 def apply_plan(
     board: Board, plan: Plan | Planner, backup_dir: Path, log: Log = quiet
 ) -> ChangeReport:
-    """Run the whole safe workflow; see the module docstring."""
+    """Run the whole safe workflow (its steps: docs/design.md)."""
     with configuration_session(board, backup_dir, log) as (session, msp, backup):
         features_before = None
         nothing_saved = (

@@ -124,8 +124,12 @@ def _build(
         plan = make.plan(prepared.command)
         values = plan.values
         inputs = _inputs_fingerprint(prepared, values)
-        same_inputs = previous is not None and previous.inputs_sha256 == inputs
-        if plan.up_to_date and same_inputs and _artifacts_intact(previous):
+        if (
+            plan.up_to_date
+            and previous is not None
+            and previous.inputs_sha256 == inputs
+            and _artifacts_intact(previous)
+        ):
             return BuildResult(
                 target=prepared.target,
                 manifest=previous,

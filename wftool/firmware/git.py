@@ -6,6 +6,7 @@ import os
 import subprocess
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 from wftool.errors import BuildError
 
@@ -50,7 +51,7 @@ def git(
     return proc
 
 
-def git_out(args: Sequence[str], cwd: Path, **kwargs) -> str:
+def git_out(args: Sequence[str], cwd: Path, **kwargs: Any) -> str:
     """Run git and return its stdout without the trailing newline."""
     return git(args, cwd, **kwargs).stdout.rstrip("\n")
 

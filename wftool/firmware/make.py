@@ -1,14 +1,5 @@
-"""Driving Betaflight's make: one make process, progress reports, a full log, a short error.
-
-Betaflight's default goal recurses (fwo -> hex -> file), parsing its Makefile three times. wftool
-instead appends a small makefile of its own (`make -f Makefile -f wftool.mk`) whose goal asks
-for the firmware files directly, and which reports the values the manifest needs (the
-embedded git revision, the output paths, the flash size) as make computes them.
-
-Rebuilding in an object directory that already holds a build, a dry run (`make -n`) first
-lists the units that are out of date: the progress total, and when it lists nothing the
-build is up to date and make is not run at all. A build from scratch skips the dry run (every
-unit compiles; the hook reports how many), so it costs no more than plain make.
+"""Driving Betaflight's make: one make process, progress reports, a full log, a short error
+(how it is driven: docs/build.md).
 """
 
 from __future__ import annotations

@@ -1,18 +1,6 @@
-"""The patch series: patches/NNNN-*.patch applied as commits on top of the Betaflight pin.
-
-Applying is atomic and deterministic. The series is first turned into commits with git's
-plumbing, as `git am` would, in a scratch index: `git mailinfo` splits each patch, `git apply
---cached` applies it, `git commit-tree` commits it with committer = author and both dates =
-the patch's Date. Nothing in the work tree changes until every patch has applied; then one
-checkout moves betaflight/ to the result, rewriting only the files that differ (so make
-rebuilds only what changed). Because identities and dates come from the patches, the patched
-commit, and so the revision embedded in the firmware, is the same on every machine.
-
-"Already applied" is exact: HEAD equals the commit the series produces. On a conflict the tree
-goes back to the pristine pin and the error names the patch and the file.
-
-wftool remembers the last commit it checked out (refs/wftool/managed): such a HEAD may be
-moved freely, while commits someone made on top of the pin are only replaced once exported.
+"""The patch series: patches/NNNN-*.patch applied as commits on top of the Betaflight pin,
+atomically and deterministically (the same patched commit on every machine), and exported
+back from commits made on top of it (docs/build.md).
 """
 
 from __future__ import annotations
@@ -116,7 +104,7 @@ def series_commits(repo: Path, base: str, patches: list[Patch]) -> list[str]:
     """Commit PATCHES on BASE in a scratch index; return the new commits, oldest first.
 
     Raises PatchError naming the patch and the file that did not apply. Touches neither the
-    work tree nor the real index; the commits are deterministic (see the module docstring).
+    work tree nor the real index; the commits are deterministic (docs/build.md).
     """
     commits: list[str] = []
     parent = base

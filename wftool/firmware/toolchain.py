@@ -362,9 +362,9 @@ def _unpack(archive: Path, file_name: str, into: Path) -> None:
                 if hasattr(tarfile, "data_filter"):
                     bundle.extractall(into, filter="data")
                 else:  # Python without extraction filters: check paths ourselves
-                    for member in bundle.getmembers():
-                        if not (into / member.name).resolve().is_relative_to(into.resolve()):
-                            raise ToolchainError(f"{file_name}: unsafe path {member.name}")
+                    for entry in bundle.getmembers():
+                        if not (into / entry.name).resolve().is_relative_to(into.resolve()):
+                            raise ToolchainError(f"{file_name}: unsafe path {entry.name}")
                     bundle.extractall(into)
     except (tarfile.TarError, zipfile.BadZipFile, OSError) as exc:
         raise ToolchainError(f"cannot unpack {file_name}: {exc}") from exc

@@ -1,14 +1,5 @@
-"""The Betaflight source tree: the pinned submodule, fetched partial and sparse.
-
-Betaflight's full checkout is ~200 MB across a dozen MCU platforms; a build needs one. So the
-tree is fetched as a shallow, blob-less clone of exactly the pinned commit and checked out
-sparsely: every platform directory and vendor library that the chosen target does not use is
-left out. The exclusions are derived from the pinned tree's own layout (which platform owns
-the MCU's target.mk, which MCU family it belongs to), so a pin bump needs no table update.
-Building another target later widens the checkout as needed, never narrows it.
-
-The clone becomes a real submodule (`git submodule absorbgitdirs`), so `git submodule status`
-works, also when the wftool checkout is a git worktree.
+"""The Betaflight source tree: the pinned submodule, fetched as a shallow, blob-less, sparse
+clone of exactly the pinned commit, with only what the target needs (docs/build.md).
 """
 
 from __future__ import annotations

@@ -26,9 +26,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from wftool.errors import FlashError
-from wftool.fc.transport import STM32_DFU, UsbId
 from wftool.flash.backend import Device, FlashBackend, Progress
 from wftool.flash.image import FlashLayout
+from wftool.link.transport import STM32_DFU, UsbId
 
 DFU_UTIL: tuple[str, ...] = ("dfu-util",)
 """How dfu-util is run (the flash tests run the real one under umockdev's wrapper)."""

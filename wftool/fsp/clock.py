@@ -5,18 +5,16 @@ Spec §7–§8. `FcClock` turns the wrapping counter into 64-bit time and tells 
 to. `EnvelopeClockEstimator` (the default) follows the lower envelope of the (FC time, OBC
 arrival) points, where the clock line lies because delays have a hard minimum;
 `KalmanClockEstimator` is the paper's reference filter of spec §8.2, made wrap-proof by working
-on unwrapped time. `make_estimator` picks one by name (`ESTIMATORS`).
+on unwrapped time. `estimators.make_estimator` picks one by name.
 """
 
 from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol, runtime_checkable
-
-from wftool.errors import UsageError
 
 if TYPE_CHECKING:
     import numpy as np
@@ -678,32 +676,3 @@ class EnvelopeClockEstimator:
             rejected=self.rejected,
             uncertainty_s=self._uncertainty_us() * 1e-6,
         )
-
-
-def _two_way() -> ClockEstimator:
-    from wftool.fsp.twoway import TwoWayClockEstimator  # it builds on this module
-
-    return TwoWayClockEstimator()
-
-
-ONE_WAY_ESTIMATORS: tuple[str, ...] = ("envelope", "kalman")
-"""Those that need nothing but the stream; the first is the default."""
-ESTIMATORS: tuple[str, ...] = (*ONE_WAY_ESTIMATORS, "twoway")
-"""Estimator names for `make_estimator` (and `--clock`): "twoway" takes the FC's time replies
-too (spec §8.3, §10), and without them is its one-way line."""
-_FACTORIES: dict[str, Callable[[], ClockEstimator]] = {
-    "envelope": EnvelopeClockEstimator,
-    "kalman": KalmanClockEstimator,
-    "twoway": _two_way,
-}
-
-
-def make_estimator(name: str = ESTIMATORS[0]) -> ClockEstimator:
-    """A fresh estimator by name: "envelope" (default), "kalman" (the paper's reference) or
-    "twoway" (the envelope with round trips: `wftool.fsp.twoway`)."""
-    try:
-        return _FACTORIES[name]()
-    except KeyError:
-        raise UsageError(
-            f"unknown clock estimator {name!r}: choose one of {', '.join(ESTIMATORS)}"
-        ) from None

@@ -1,25 +1,8 @@
-"""Columnar decoding: a whole FSP capture into NumPy arrays, one per field, no frame objects.
+"""Columnar decoding: a whole FSP capture into NumPy arrays, one per field, with no object per
+frame, agreeing exactly with `StateDecoder` fed the same reads (how: docs/design.md).
 
-Analysis of a ten-minute 1 kHz run (~630,000 frames) should not make a Python object per
-frame. `decode_columns` takes the bytes of a capture at once — with the sizes of the reads
-they arrived in and each read's OBC arrival time, when known — and returns `StateColumns`,
-which agree exactly with `StateDecoder` fed the same reads: the same packets, FC and OBC
-times, and every count in `StreamStats` (tests/fsp/test_columns.py holds it to that).
-
-How, per block of chunks: the delimiters are found with NumPy; every chunk with the length
-of a COBS-encoded state packet is copied into a row, and a whole block of rows is decoded
-by one call of the `cobs` C decoder on their concatenation. A row decodes on its own exactly
-when that one decode enters it at its first byte and leaves it at its last, which shows as a
-zero at the row's end in the output; rows that do not are decoded one by one, so damage
-costs speed, never exactness. The version bytes and the CRC (`crc.crc8_check_words`) are
-checked over all rows at once, and the accepted rows are viewed as a structured dtype
-derived from the layouts in `packets`. FC times are unwrapped with cumulative sums; the
-steps `FcClock` would have to think about (gaps, jumps, reboots) are put to an `FcClock`.
-Where a packet does not follow the one before it, the decoder's walk that tells outliers from
-what comes next is repeated one packet at a time (`decoder.follows`). OBC times come from
-the same `ClockEstimator` as `StateDecoder`'s, one packet at a time.
-
-NumPy is an optional dependency: `pip install 'wftool[analysis]'`.
+    run = decode_columns(data, read_sizes, arrival_times)   # needs wftool[analysis]
+    run.time_us, run.acc_g, run.obc_time, run.stats
 """
 
 from __future__ import annotations
@@ -42,7 +25,6 @@ from wftool.fsp.clock import (
     ClockEstimator,
     FcClock,
 )
-from wftool.fsp.crc import crc8_check_words
 from wftool.fsp.decoder import (
     JITTER_US,
     Reading,
@@ -64,6 +46,7 @@ from wftool.fsp.packets import (
     TUNNEL_LAYOUT,
     Layout,
 )
+from wftool.link.crc import crc8_check_words
 
 if TYPE_CHECKING:
     import numpy as np
@@ -239,7 +222,7 @@ def decode_columns(
 
 def _block_columns(np: Any, positions: np.ndarray, records: np.ndarray) -> dict[str, Any]:
     """The raw columns of one block of records, copied while the block is in cache."""
-    names = records.dtype.names
+    names = records.dtype.names or ()  # a structured array: never None
     frames = records["frames"]
     columns = {name: np.ascontiguousarray(frames[name]) for name, _ in FRAME_LAYOUT}
     columns.update(

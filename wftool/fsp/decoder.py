@@ -1,19 +1,10 @@
-"""The streaming FSP decoder: bytes in, timed state packets out, every anomaly counted.
+"""The streaming FSP decoder: bytes in, timed state packets out, every anomaly counted; it never
+raises on input (loss, FC drops, wraps, resets, outliers: docs/design.md).
 
-`StateDecoder.feed` takes bytes as they arrive from any transport. It never raises on
-input. On top of framing (`framing.Deframer`) it keeps the books a flight needs:
-transport loss (E1 `seq` gaps, or `sample_time_us` gaps without E1) apart from frames the
-FC itself dropped (E1 `drops`), wraps and resets of the FC clock, and each frame's time
-on the OBC clock. With E2 (spec §10) it also takes the FC's time replies, places their FC
-times in the stream's and pairs them with the commands sent (`round_trips`); a decoder
-without E2 counts each reply as one chunk of bad length.
-
-A packet that does not continue the stream (`follows`) is delivered at once, marked an
-outlier, and kept out of the books until the next packet shows what it was: an outlier
-(a repeated old packet, or a sample time that passed the CRC by chance) when the next one
-continues the stream before it, or the first packet of what comes next (an FC reset, a
-wrap after a gap) when the next one continues it. Only then, with E1 `seq` and its
-continuity, is a step decided: one lone packet never makes a reset or a loss.
+    decoder = StateDecoder()
+    for packet in decoder.feed(data, arrival_time):
+        ...
+    decoder.stats   # packets, rejections by cause, loss, FC drops, wraps, resets
 """
 
 from __future__ import annotations
@@ -29,8 +20,8 @@ from wftool.fsp.clock import (
     ClockState,
     FcClock,
     RoundTripObserver,
-    make_estimator,
 )
+from wftool.fsp.estimators import make_estimator
 from wftool.fsp.framing import (
     COMMAND_VERSIONS,
     STATE_E2_VERSIONS,
@@ -150,7 +141,7 @@ class StateDecoder:
     def __init__(
         self, clock: ClockEstimator | str | None = None, *, time_replies: bool | None = None
     ) -> None:
-        """`clock`: an estimator, or its name in `clock.ESTIMATORS` (default: "envelope").
+        """`clock`: an estimator, or its name in `estimators.ESTIMATORS` (default: "envelope").
         `time_replies`: take E2 time replies (default: when the clock takes round trips)."""
         self._fc_clock = FcClock()
         if clock is None:
@@ -182,10 +173,21 @@ class StateDecoder:
         """The newest packet in the books (None before the first): outliers are not."""
         return self._last
 
+    @property
+    def joined(self) -> dict[Rejection, int]:
+        """Of `stats.rejected`: the chunks cut by joining the stream mid-way, the one each
+        connection began in (`join`, `resync`; a new decoder is joining)."""
+        return self._deframer.joined
+
+    def join(self) -> None:
+        """A connection opens mid-stream: the bytes up to the next delimiter end a chunk
+        whose start was never seen."""
+        self._deframer.join()
+
     def resync(self) -> None:
         """The byte stream broke off and starts again (a reconnect): the partial chunk is
-        dropped. The FC's stream goes on, and so do its clock, its sequence and the books:
-        what was lost meanwhile is counted as any loss."""
+        dropped and the stream joined anew. The FC's stream goes on, and so do its clock,
+        its sequence and the books: what was lost meanwhile is counted as any loss."""
         self._deframer.resync()
 
     def feed(self, data: bytes, arrival_time: float | None = None) -> list[StatePacket]:
@@ -286,7 +288,9 @@ class StateDecoder:
             if packet.drops != last.drops:
                 stats.fc_drops += (packet.drops - last.drops) % DROPS_MODULUS
         elif period_us > 0:
-            missing = round((base_us - last.frames[1].time_us) / period_us) - 1
+            last_us = last.frames[1].time_us
+            assert last_us is not None  # a packet in the books is timed
+            missing = round((base_us - last_us) / period_us) - 1
             stats.lost_frames += max(0, missing)
 
     def _provisional(self, packet: StatePacket, last: StatePacket) -> None:

@@ -19,6 +19,7 @@ from wftool.fsp.packets import (
     pack_command,
     pack_state,
     pack_time_reply,
+    rc_values,
 )
 from wftool.fsp.twoway import RoundTripMatcher
 
@@ -61,9 +62,10 @@ class CommandSender:
 
     def next(self, rc: Sequence[int], now: float | None = None) -> CommandPacket:
         """The next command packet (see `encode`), recorded as sent."""
+        values = rc_values(rc)  # before anything is recorded as sent
         sent_at = self._now() if now is None else now
         packet = CommandPacket(
-            rc=tuple(rc), seq=self.seq % SEQ_MODULUS, tx_time_us=int(sent_at * 1e6) & U32_MASK
+            rc=values, seq=self.seq % SEQ_MODULUS, tx_time_us=int(sent_at * 1e6) & U32_MASK
         )
         if self.round_trips is not None:
             self.round_trips.sent(packet.seq, packet.tx_time_us, sent_at)

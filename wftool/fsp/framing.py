@@ -12,7 +12,6 @@ from collections.abc import Mapping
 
 from cobs import cobs
 
-from wftool.fsp.crc import crc8_residues
 from wftool.fsp.packets import (
     COMMAND_LENGTH,
     STATE_LENGTH,
@@ -21,6 +20,7 @@ from wftool.fsp.packets import (
     VERSION_BASE,
     VERSION_TUNNEL,
 )
+from wftool.link.crc import crc8_residues
 
 DELIMITER = b"\x00"
 
@@ -70,15 +70,39 @@ class Deframer:
         self._tail = b""
         self._discarding = False
         self.rejected: dict[Rejection, int] = dict.fromkeys(Rejection, 0)
+        self.joined: dict[Rejection, int] = dict.fromkeys(Rejection, 0)
+        """Of `rejected`: the chunks that began before the stream was joined (`join`)."""
+        self._joining = True
+
+    def join(self) -> None:
+        """The stream is joined mid-way (a connection opens): the bytes up to the next
+        delimiter end a chunk whose start was never seen. A new deframer is joining."""
+        self._joining = True
 
     def resync(self) -> None:
         """The byte stream broke off (a reconnect): forget the partial chunk; what comes
-        next starts a chunk of its own."""
+        next starts a chunk of its own, joined mid-way."""
         self._tail = b""
         self._discarding = False
+        self._joining = True
 
     def feed(self, data: bytes) -> list[bytes]:
         """Payloads of every packet completed by `data`, in stream order."""
+        if self._joining:
+            return self._join(data)
+        return self._feed(data)
+
+    def _join(self, data: bytes) -> list[bytes]:
+        """`feed`, counting what the chunk cut by joining is rejected for in `joined` too."""
+        head, delimiter, rest = data.partition(DELIMITER)
+        before = dict(self.rejected)
+        payloads = self._feed(head + delimiter)
+        for cause, count in self.rejected.items():
+            self.joined[cause] += count - before[cause]
+        self._joining = not delimiter
+        return payloads + self._feed(rest) if rest else payloads
+
+    def _feed(self, data: bytes) -> list[bytes]:
         chunks = (self._tail + data).split(DELIMITER) if self._tail else data.split(DELIMITER)
         tail = chunks.pop()
         if self._discarding and chunks:
@@ -115,7 +139,7 @@ class Deframer:
     def _check_crc(self, candidates: list[bytes]) -> list[bytes]:
         lengths = {len(p) for p in candidates}
         if len(lengths) > 1:  # a stream that mixes variants: check each length on its own
-            passing = set()
+            passing: set[bytes] = set()
             for length in lengths:
                 same = [p for p in candidates if len(p) == length]
                 passing.update(p for p, r in zip(same, crc8_residues(same, length)) if r == 0)

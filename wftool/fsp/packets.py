@@ -9,9 +9,10 @@ from __future__ import annotations
 
 import math
 import struct
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
-from wftool.fsp.crc import crc8
+from wftool.link.crc import crc8
 
 VERSION = 5
 TUNNEL_FLAG = 0x80
@@ -232,11 +233,25 @@ class StatePacket:
         return self.mavlink is not None
 
 
+RcValues = tuple[int, int, int, int, int, int]
+"""roll, pitch, yaw, throttle, aux3, aux4: what a command carries."""
+
+
+def rc_values(rc: Sequence[int]) -> RcValues:
+    """`rc` as a command carries it; ValueError unless it holds six values."""
+    if len(rc) != 6:
+        raise ValueError(
+            f"a command carries 6 RC values (roll pitch yaw throttle aux3 aux4), not {len(rc)}"
+        )
+    roll, pitch, yaw, throttle, aux3, aux4 = rc
+    return (roll, pitch, yaw, throttle, aux3, aux4)
+
+
 @dataclass(slots=True)
 class CommandPacket:
     """OBC → FC command packet (spec §5): RC values for the FC's MSP receiver path."""
 
-    rc: tuple[int, int, int, int, int, int]
+    rc: RcValues
     """roll, pitch, yaw, throttle, aux3, aux4 (µs-style, 1000–2000)."""
     seq: int = 0
     tx_time_us: int = 0

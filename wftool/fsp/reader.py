@@ -1,18 +1,10 @@
-"""Reading FSP from a port: the API an OBC program uses.
+"""Reading FSP from a port: the API an OBC program uses. `FspPort` is the port (bytes in,
+commands out); `FspReader` is one with its `StateDecoder`. Any pyserial URL works.
 
-    with FspReader("/dev/ttyTHS1", baudrate=2_000_000) as fsp:
+    with FspReader("/dev/ttyTHS1", baudrate=2_000_000) as fsp:   # or socket://127.0.0.1:5762
         for frame in fsp.frames():
             print(frame.obc_time, frame.acc_g, frame.euler_deg)
             fsp.send_command((1500, 1500, 1500, 1000, 1000, 1000))
-
-Any pyserial URL works (`socket://127.0.0.1:5762` for the virtual FC, `rfc2217://…`). Bytes
-are timestamped with the OBC clock when read, which feeds clock alignment. A port that
-cannot be opened or that vanishes raises `wftool.errors.PortError` and nothing else.
-
-`FspPort` is the port alone (bytes in, commands out), for a caller that decodes itself (the
-verify monitor keeps one `StateDecoder` per connection); `FspReader` is a port with its
-`StateDecoder`. With two-way timing (`StateDecoder("twoway")`, the FC's `fsp_time_reply`
-ON) the commands it sends are paired with the FC's time replies (spec §10).
 """
 
 from __future__ import annotations
@@ -22,13 +14,11 @@ from collections.abc import Callable, Iterator, Sequence
 from types import TracebackType
 from typing import TypeVar
 
-import serial
-
 from wftool.errors import PortError
-from wftool.fc.transport import open_port, port_errors, read_within, selectable_fd
 from wftool.fsp.decoder import StateDecoder
 from wftool.fsp.encoder import CommandSender, encode_command
 from wftool.fsp.packets import CommandPacket, SensorFrame, StatePacket
+from wftool.link.transport import Port, open_port, port_errors, read_within, selectable_fd
 
 DEFAULT_BAUDRATE = 2_000_000
 """The FSP baud rate wftool assumes unless told otherwise (`verify`, the virtual FC)."""
@@ -49,7 +39,7 @@ class FspPort:
         self.baudrate = baudrate
         self._now = now
         self._sender = CommandSender(now)
-        self._port: serial.SerialBase | None = None
+        self._port: Port | None = None
         self._fd: int | None = None
 
     def open(self: _Port) -> _Port:
@@ -75,7 +65,7 @@ class FspPort:
         self.close()
 
     @property
-    def port(self) -> serial.SerialBase:
+    def port(self) -> Port:
         if self._port is None:
             raise PortError(f"{self.url} is not open")
         return self._port

@@ -1,14 +1,6 @@
-"""Two-way timing (spec §10, E2): round trips from time replies, and the absolute FC→OBC clock.
-
-One-way timing finds the line along which the fastest packets arrive, t_o = α·t_f + β + d_min,
-but not d_min itself (spec §8). A command sent at OBC time t1, taken by the FC at t2 and
-answered at t3, the answer read at t4, bounds β from both sides: t1 − α·t2 ≤ β ≤ t4 − α·t3.
-
-- `RoundTripMatcher` pairs each time reply with the command it answers (the OBC's record of
-  what it sent) and counts what cannot be paired.
-- `TwoWayClockEstimator` (`make_estimator("twoway")`) is a `ClockEstimator` that keeps the
-  one-way envelope estimator for the line and takes round trips (`RoundTripObserver`) for
-  its height: OBC times without d_min, with their uncertainty and the one-way delay bound.
+"""Two-way timing (spec §10, E2): time replies paired with the commands they answer
+(`RoundTripMatcher`), and the absolute FC→OBC clock they give (`TwoWayClockEstimator`,
+`make_estimator("twoway")`). How the round trips bound the offset: docs/design.md.
 """
 
 from __future__ import annotations

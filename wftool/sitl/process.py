@@ -1,24 +1,8 @@
-"""Process manager for the virtual flight controller (Betaflight SITL).
+"""The virtual flight controller's process (Betaflight SITL): started on its own ports, ready
+when MSP answers, stopped with wftool however wftool ends (the SITL facts: docs/design.md).
 
-SITL facts this relies on (Betaflight 2025.12, `src/platform/SIMULATOR`):
-
-- UARTn is a TCP server on 127.0.0.1:PORT_BASE+n (patch 0004's `--port-base`, default
-  5760), but only for UARTs that have a serial function configured (stock: UART1 = MSP
-  only). Each accepts ONE client; a connection arriving before the previous one's close was
-  processed is dropped at once. So a readiness probe must wait until SITL logs both
-  `[NEW]UART1` (accepted) and `[CLS]UART1` (released).
-- The simulator's UDP ports (state in, RC in, PWM out) are SIM_BASE+1..+4 (`--sim-port-base`);
-  wftool puts them at PORT_BASE + 3240, which keeps upstream's 9001–9004 for the default
-  base. So several virtual FCs run side by side, each with its own port base.
-- `--exit-with-parent` ends SITL when the process that started it ends (PR_SET_PDEATHSIG,
-  armed for the *thread* that starts it: start SITL from a thread that outlives it).
-- Its clock is patch 0003's lockstep clock: FC time in exact gyro periods, paced to the host's
-  CLOCK_MONOTONIC; every (re)anchoring is logged as `[SITL] lockstep anchor: ...`.
-- Now and then (a few starts in a hundred) SITL boots with its gyro task never scheduled:
-  MSP and the CLI answer, but no PID loop runs (MSP_STATUS cycle time 0). Such a start is
-  detected and retried, as a watchdog would reset a hung board.
-- Every reset (CLI `save`/`exit`, MSP reboot, reboot to bootloader) ends the process with
-  exit status 0; the configuration survives in `eeprom.bin` in the working directory.
+    with VirtualFC(binary, workdir, port_base=21000) as fc:
+        print(fc.url, fc.uart_url(2))
 """
 
 from __future__ import annotations

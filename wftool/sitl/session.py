@@ -189,9 +189,9 @@ class VirtualFcSession:
         stop = threading.Event()
         failure: list[BaseException] = []
 
-        def run() -> None:
+        def run(work: Callable[[threading.Event], object]) -> None:
             try:
-                alongside(stop)
+                work(stop)
             except BaseException as exc:
                 failure.append(exc)
             finally:
@@ -199,7 +199,9 @@ class VirtualFcSession:
 
         thread = None
         if alongside is not None:
-            thread = threading.Thread(target=run, name="wftool-serve-alongside", daemon=True)
+            thread = threading.Thread(
+                target=run, args=(alongside,), name="wftool-serve-alongside", daemon=True
+            )
             thread.start()
         try:
             while not stop.wait(0.2):

@@ -1,16 +1,7 @@
-"""The virtual FC's true clock: the host instant of every FC time, from the SITL's own log.
+"""The virtual FC's true clock: the host `time.monotonic()` instant of every FC time, from the
+lockstep anchors the SITL logs (docs/design.md).
 
-Patch 0003's lockstep clock paces FC time to the host's CLOCK_MONOTONIC (Python's
-`time.monotonic`) and logs each (re)anchoring on SITL's stderr, which `VirtualFC` writes to
-`sitl.log`:
-
-    [SITL] lockstep anchor: fc_us=<micros64> monotonic_ns=<ns> step_us=125 reason=start|host-lag
-
-FC time T (µs since SITL started, `micros64`) is due at monotonic_ns + (T − fc_us)·1000 of
-the latest anchor at or before T: the FC sleeps until then and runs the code of time T right
-after (on a loaded host up to 50 ms later; further behind, it re-anchors). That instant is
-the ground truth an FC→OBC clock estimate is judged against. A SITL reset is a new process
-with a new `start` anchor: a `TrueClock` holds the anchors of one process.
+    TrueClock(fc.log_path).instant(frame.time_us)
 """
 
 from __future__ import annotations

@@ -1,3 +1,3 @@
-"""Verifying an FSP stream: `session` is the API (run, verdict); `monitor` keeps the
-statistics, `criteria` judges, `live` reads the port, `recording` writes and replays runs,
-`dashboard` renders, `uplink` checks the command path."""
+"""Verifying an FSP stream: `session` is the API (run, verdict, replay); `live` reads the
+port and hands each event to the monitor and the sinks, `monitor` keeps the statistics,
+`criteria` judges, `uplink` checks the command path, `dashboard` and `foxglove` show it."""

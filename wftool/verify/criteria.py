@@ -30,6 +30,14 @@ class Criteria:
     max_outage_s: float = 0.0
     """Time the port may be gone during the run (s, all outages): 0 fails any reconnect."""
     uplink: bool = False
+    """Judge the uplink pattern's echo (`MIN_UPLINK_ECHOED`)."""
+
+
+def criteria_for(*, uplink: bool = False, **limits: float | None) -> Criteria:
+    """The criteria for a user's limits, by `Criteria`'s field names: a limit left at None
+    takes the default. A board and the virtual FC are judged alike."""
+    given = {name: value for name, value in limits.items() if value is not None}
+    return Criteria(uplink=uplink, **given)  # type: ignore[arg-type]
 
 
 @dataclass(frozen=True)

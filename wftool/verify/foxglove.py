@@ -1,19 +1,9 @@
-"""The live stream for Foxglove: a WebSocket server publishing ROS 2 messages as they decode.
+"""The live stream for Foxglove: a WebSocket server (the Foxglove SDK, extra
+`wftool[foxglove]`) publishing the recording's ROS 2 messages as they decode; a `Sink` of
+the live loop that never waits for a viewer (how: docs/ros2.md).
 
-Built on the Foxglove SDK (`foxglove-sdk`, extra `wftool[foxglove]`). Its server runs in
-the SDK's own threads, outside the GIL, and `Channel.log` only queues the message: about
-0.3 µs here. Each client has a bounded queue (`backlog` messages); when a slow or stuck
-viewer lets it fill, its oldest messages are dropped, and a client whose control queue
-fills is disconnected. Publishing never waits for a viewer. Nothing is encoded for a
-topic nobody subscribed to. A server written on `websockets` would do that work (framing,
-per-client queues) in Python, under the GIL the decoder needs.
-
-The SDK speaks the Foxglove WebSocket protocol under its current subprotocol name,
-`foxglove.sdk.v1`: the Foxglove app and Lichtblick (since late 2025) connect; clients that
-only offer the old name, `foxglove.websocket.v1`, are refused at the handshake.
-
-Messages are the recording's (`wftool.verify.ros2`, CDR with `ros2msg` schemas) plus the
-attitude in degrees, for plotting.
+    with FoxgloveLive(8765) as view:   # ws://127.0.0.1:8765
+        view.packets(packets, health)
 """
 
 from __future__ import annotations
@@ -24,8 +14,9 @@ from typing import Any
 from wftool.errors import UsageError
 from wftool.extras import require
 from wftool.fsp import SensorFrame, StatePacket
-from wftool.verify import ros2
-from wftool.verify.ros2 import (
+from wftool.recording import ros2msg
+from wftool.recording.events import Event, StreamHealth
+from wftool.recording.ros2msg import (
     ATTITUDE_TOPIC,
     BATTERY_TOPIC,
     HEALTH_TOPIC,
@@ -34,7 +25,6 @@ from wftool.verify.ros2 import (
     RPM_TOPIC,
     FrameEncoder,
     MessageType,
-    StreamHealth,
     Throttle,
 )
 
@@ -43,15 +33,15 @@ DEFAULT_HOST = "127.0.0.1"
 BACKLOG = 1024
 """Messages queued per client before its oldest are dropped (the SDK's default)."""
 _PER_FRAME: tuple[tuple[str, MessageType, Callable[[SensorFrame, int], bytes]], ...] = (
-    (IMU_TOPIC, ros2.IMU, FrameEncoder.imu),
-    (ATTITUDE_TOPIC, ros2.ATTITUDE, FrameEncoder.attitude),
-    (RC_TOPIC, ros2.RC_CHANNELS, FrameEncoder.rc),
-    (RPM_TOPIC, ros2.MOTOR_RPM, FrameEncoder.rpm),
+    (IMU_TOPIC, ros2msg.IMU, FrameEncoder.imu),
+    (ATTITUDE_TOPIC, ros2msg.ATTITUDE, FrameEncoder.attitude),
+    (RC_TOPIC, ros2msg.RC_CHANNELS, FrameEncoder.rc),
+    (RPM_TOPIC, ros2msg.MOTOR_RPM, FrameEncoder.rpm),
 )
 TOPICS: dict[str, MessageType] = {
     **{topic: kind for topic, kind, _ in _PER_FRAME},
-    BATTERY_TOPIC: ros2.BATTERY_STATE,
-    HEALTH_TOPIC: ros2.STREAM_HEALTH,
+    BATTERY_TOPIC: ros2msg.BATTERY_STATE,
+    HEALTH_TOPIC: ros2msg.STREAM_HEALTH,
 }
 
 
@@ -126,6 +116,9 @@ class FoxgloveLive:
                 self._health.log(
                     self._encoder.health(health), log_time=self._encoder.stamp_ns(health.t)
                 )
+
+    def event(self, event: Event) -> None:
+        """Nothing: a viewer sees the frames, not the reads they came in."""
 
     def packets(self, packets: Sequence[StatePacket], health: StreamHealth | None = None) -> None:
         """`publish` every frame of `packets`: the call verify's live loop makes per read."""

@@ -1,8 +1,12 @@
-"""The live verify loop: read a port, feed the monitor, record, drive the uplink, reconnect.
+"""The live verify loop: read a port, hand each event to the monitor and the sinks, send the
+uplink pattern, reconnect.
 
-Runs until `duration_s` passes or `stop` is set. A port that cannot be opened at the start
-is a `PortError` (the caller's connection error); one that goes away later is shown,
-counted, and reopened with backoff — a rebooting FC or a restarted SITL is survived.
+    summary = run_live(LiveOptions("socket://127.0.0.1:5762", 2_000_000, 10.0), monitor,
+                       sinks=[recorder])
+
+A port that cannot be opened at the start is a `PortError` (the caller's connection error);
+one that goes away later is counted and reopened with backoff, so a rebooting FC or a
+restarted SITL is survived.
 """
 
 from __future__ import annotations
@@ -12,17 +16,12 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 from wftool.errors import PortError, UsageError
-from wftool.fsp import FspPort, StatePacket
-from wftool.verify.monitor import StreamMonitor, StreamSummary
-from wftool.verify.recording import Event, Recorder
-from wftool.verify.ros2 import HealthSampler
-from wftool.verify.uplink import pattern_command
-
-if TYPE_CHECKING:
-    from wftool.verify.foxglove import FoxgloveLive
+from wftool.fsp import CommandPacket, FspPort, StatePacket
+from wftool.recording.events import Event, Sink
+from wftool.verify.monitor import HealthSampler, StreamMonitor, StreamSummary
+from wftool.verify.uplink import UplinkPattern
 
 REFRESH_S = 0.25
 READ_TIMEOUT_S = 0.05
@@ -53,99 +52,133 @@ class LiveOptions:
 def run_live(
     options: LiveOptions,
     monitor: StreamMonitor,
-    recorder: Recorder | None = None,
+    sinks: Sequence[Sink] = (),
     on_refresh: Callable[[StreamSummary], None] | None = None,
     stop: threading.Event | None = None,
     now: Callable[[], float] = time.monotonic,
-    on_packets: Callable[[Sequence[StatePacket], float], None] | None = None,
-    live_view: FoxgloveLive | None = None,
 ) -> StreamSummary:
-    """Verify the stream on `options.url` until the duration is up; the final summary.
+    """Verify the stream on `options.url` until the duration is up or `stop` is set; the
+    final summary. The monitor decodes (one decoder for the whole run); each sink gets
+    every event, then each read's packets with a health snapshot (at most 10 Hz);
+    `on_refresh` gets a summary four times a second."""
+    return _LiveRun(options, monitor, sinks, now).run(on_refresh, stop)
 
-    The port is only read here; the monitor decodes (one decoder per connection). Each
-    read's packets go to `recorder` and `live_view` with a health snapshot (at most 10 Hz);
-    `on_packets` gets them and their arrival time, after the monitor has them.
-    """
-    start = now()
-    end = start + options.duration_s if options.duration_s is not None else float("inf")
-    reader: FspPort | None = None
-    backoff = BACKOFF_FIRST_S
-    retry_at = start
-    command_index = 0
-    period = 1.0 / options.uplink_rate_hz if options.uplink_rate_hz else None
-    next_command = start
-    next_refresh = start
-    connected_once = False
-    health = HealthSampler(monitor)
 
-    def record(event: Event) -> None:
-        if recorder is not None:
-            recorder.event(event)
+class Dispatcher:
+    """What a run does with each thing it sees: the event to every sink, then to the
+    monitor; a read's packets to every sink, with the latest health snapshot."""
 
-    def drop(t: float) -> None:
-        nonlocal reader, retry_at
-        if reader is not None:
-            reader.close()
-            reader = None
-        monitor.disconnected(t)
-        record(Event("disconnected", t))
-        retry_at = t + backoff
+    def __init__(self, monitor: StreamMonitor, sinks: Sequence[Sink] = ()) -> None:
+        self.monitor = monitor
+        self.sinks = tuple(sinks)
+        self._health = HealthSampler(monitor)
 
-    try:
-        while True:
-            t = now()
-            if t >= end or (stop is not None and stop.is_set()):
-                break
-            if reader is None:
-                if t < retry_at:
-                    time.sleep(min(retry_at - t, end - t, READ_TIMEOUT_S))
-                    continue
-                try:
-                    reader = FspPort(options.url, options.baudrate).open()
-                except PortError:
-                    if not connected_once:
-                        raise  # the caller's connection error, not a dropout
-                    backoff = min(2 * backoff, BACKOFF_MAX_S)
-                    retry_at = t + backoff
-                    continue
-                t = now()
-                connected_once = True
-                monitor.connected(t)
-                record(Event("connected", t))
-                backoff = BACKOFF_FIRST_S
-            wait = READ_TIMEOUT_S
-            if period is not None:
-                wait = max(0.0, min(wait, next_command - t))
-            try:
-                data = reader.read_bytes(wait)
-                t = now()
-                if data:
-                    record(Event("bytes", t, data))
-                    packets = monitor.feed(data, t)
-                    if recorder is not None or live_view is not None:
-                        snapshot = health.sample(packets, t)
-                        if recorder is not None:
-                            recorder.packets(packets, snapshot)
-                        if live_view is not None:
-                            live_view.packets(packets, snapshot)
-                    if on_packets is not None and packets:
-                        on_packets(packets, t)
-                if period is not None and t >= next_command:
-                    rc = pattern_command(command_index, options.uplink_rate_hz)
-                    command = reader.send_command(rc, now=t)
-                    monitor.command_sent(rc, t, command)
-                    record(Event("command", t, rc=rc))
-                    command_index += 1
-                    next_command = max(next_command + period, t - period)
-            except PortError:
-                drop(now())
-            if on_refresh is not None and t >= next_refresh:
-                on_refresh(monitor.summary(t))
-                next_refresh = t + REFRESH_S
-    finally:
-        t = now()
-        if reader is not None:
-            reader.close()
-            monitor.disconnected(t)
-            record(Event("disconnected", t))
-    return monitor.summary(t)
+    def event(self, event: Event, command: CommandPacket | None = None) -> list[StatePacket]:
+        """Dispatch `event` (`command`: the packet a command event sent); the packets a
+        read completed, which the sinks have then been given too."""
+        for sink in self.sinks:
+            sink.event(event)
+        packets = self.monitor.apply(event, command)
+        if event.kind == "bytes" and self.sinks:
+            health = self._health.sample(packets, event.t)
+            for sink in self.sinks:
+                sink.packets(packets, health)
+        return packets
+
+
+class _LiveRun:
+    def __init__(
+        self,
+        options: LiveOptions,
+        monitor: StreamMonitor,
+        sinks: Sequence[Sink],
+        now: Callable[[], float],
+    ) -> None:
+        self._options = options
+        self._monitor = monitor
+        self._emit = Dispatcher(monitor, sinks).event
+        self._now = now
+        self._port: FspPort | None = None
+        self._connected_once = False
+        self._backoff = BACKOFF_FIRST_S
+        self._retry_at = 0.0
+        self._uplink: UplinkPattern | None = None
+
+    def run(
+        self, on_refresh: Callable[[StreamSummary], None] | None, stop: threading.Event | None
+    ) -> StreamSummary:
+        start = self._now()
+        duration_s, uplink_rate_hz = self._options.duration_s, self._options.uplink_rate_hz
+        end = start + duration_s if duration_s is not None else math.inf
+        self._retry_at = next_refresh = start
+        if uplink_rate_hz:
+            self._uplink = UplinkPattern(uplink_rate_hz, start)
+        try:
+            while True:
+                t = self._now()
+                if t >= end or (stop is not None and stop.is_set()):
+                    break
+                port = self._port
+                if port is None:
+                    connected = self._connect(t, end)
+                    if connected is None:
+                        continue
+                    t, port = connected
+                t = self._exchange(port, t)
+                if on_refresh is not None and t >= next_refresh:
+                    on_refresh(self._monitor.summary(t))
+                    next_refresh = t + REFRESH_S
+        finally:
+            t = self._now()
+            if self._port is not None:
+                self._drop(t)
+        return self._monitor.summary(t)
+
+    def _connect(self, t: float, end: float) -> tuple[float, FspPort] | None:
+        """Open the port if its retry is due: the time it opened, and it; None while it
+        cannot be."""
+        if t < self._retry_at:
+            time.sleep(min(self._retry_at - t, end - t, READ_TIMEOUT_S))
+            return None
+        try:
+            port = FspPort(self._options.url, self._options.baudrate).open()
+        except PortError:
+            if not self._connected_once:
+                raise  # the caller's connection error, not a dropout
+            self._backoff = min(2 * self._backoff, BACKOFF_MAX_S)  # a rebooting FC takes seconds
+            self._retry_at = t + self._backoff
+            return None
+        self._port = port
+        self._connected_once = True
+        t = self._now()
+        self._emit(Event("connected", t))
+        self._backoff = BACKOFF_FIRST_S
+        return t, port
+
+    def _exchange(self, port: FspPort, t: float) -> float:
+        """One read, and the command that is due; the time the read returned (`t` if the
+        port went away, which drops it)."""
+        uplink = self._uplink
+        # A read returns at once when bytes come; else it waits no longer than the next command.
+        wait = READ_TIMEOUT_S if uplink is None else max(0.0, min(READ_TIMEOUT_S, uplink.due - t))
+        try:
+            data = port.read_bytes(wait)
+            t = self._now()
+            if data:
+                self._emit(Event("bytes", t, data))
+            if uplink is not None and t >= uplink.due:
+                rc = uplink.command()
+                command = port.send_command(rc, now=t)
+                self._emit(Event("command", t, rc=rc), command)
+                uplink.sent(t)
+        except PortError:
+            self._drop(self._now())
+        return t
+
+    def _drop(self, t: float) -> None:
+        """The port is gone (or the run is over): close it, and retry after the backoff."""
+        port, self._port = self._port, None
+        if port is not None:
+            port.close()
+        self._emit(Event("disconnected", t))
+        self._retry_at = t + self._backoff

@@ -1,12 +1,11 @@
-"""Statistics of a live (or replayed) FSP stream: what `verify` shows and judges.
+"""Statistics of a live or replayed FSP stream: what `verify` shows and judges. One decoder
+reads the whole run, across reconnects; interval statistics are exact histograms
+(docs/design.md).
 
-`StreamMonitor` is fed the same events live and on replay — connects, disconnects, byte
-chunks with their OBC arrival time, commands sent — so a recording replays to the same
-summary. One decoder reads the whole run: a reconnect breaks the bytes, not the FC's
-stream, so what the FC sent during an outage is counted as lost (E1 `seq` says exactly how
-much) and rates are over the whole run. Interval statistics live in integer-µs histograms:
-exact percentiles in memory bounded by the number of distinct intervals, not by the length
-of the run; an interval across a known gap (E1 `seq` or `drops`) is no interval of the FC's.
+    monitor = StreamMonitor(url, expected_rate_hz=1000.0)
+    for event in events:
+        monitor.apply(event)
+    monitor.summary()
 """
 
 from __future__ import annotations
@@ -17,11 +16,14 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 
 from wftool.fsp import CommandPacket, SensorFrame, StateDecoder, StatePacket
-from wftool.fsp.clock import ESTIMATORS, ClockState
+from wftool.fsp.clock import ClockState
 from wftool.fsp.encoder import U32_MASK
-from wftool.fsp.framing import DELIMITER, Rejection
-from wftool.fsp.packets import SEQ_MODULUS
+from wftool.fsp.estimators import ESTIMATORS
+from wftool.fsp.framing import Rejection
+from wftool.fsp.packets import SEQ_MODULUS, rc_values
 from wftool.fsp.twoway import RoundTrip, RoundTripRejection, TwoWayClockEstimator, TwoWayState
+from wftool.recording.events import Event, StreamHealth
+from wftool.recording.ros2msg import SLOW_PERIOD_NS
 from wftool.verify.uplink import UplinkStats, UplinkTracker
 
 RATE_WINDOW_S = 2.0
@@ -131,6 +133,26 @@ class StreamSummary:
         sent = self.frames + self.lost_frames
         return 100.0 * self.lost_frames / sent if sent else 0.0
 
+    def health(self, latest: StatePacket | None, t: float) -> StreamHealth:
+        """The counters as a `/fsp/health` snapshot taken at `t`, with the latest packet's
+        seq and epoch."""
+        return StreamHealth(
+            t=t,
+            seq=latest.seq if latest is not None else 0,
+            epoch=latest.epoch if latest is not None else 0,
+            e1=bool(self.e1),
+            clock_locked=self.clock is not None and self.clock.locked,
+            connected=self.connected,
+            packets=self.packets,
+            frames=self.frames,
+            lost_frames=self.lost_frames,
+            lost_packets=self.lost_packets,
+            fc_drops=self.fc_drops,
+            rejected_chunks=self.errors,
+            resets=self.resets,
+            reconnects=self.reconnects,
+        )
+
     def as_json(self) -> dict:
         data = asdict(self)
         data.update(errors=self.errors, loss_pct=self.loss_pct, outage_s=self.outage_s)
@@ -175,10 +197,6 @@ class StreamMonitor:
         self.round_trips = IntervalHistogram()
         self._commands = 0
         """Commands sent on this connection (a port opened with it numbers them from 0)."""
-        self._joined: Counter[Rejection] = Counter()
-        """Rejections of the chunk each connection began in (cut by joining mid-stream)."""
-        self._joining = False
-        """Connected, and no delimiter seen yet: the bytes belong to the cut chunk."""
         self._connected_at: float | None = None
         self._started: float | None = None
         self._now = 0.0
@@ -188,14 +206,28 @@ class StreamMonitor:
 
     # -- events -----------------------------------------------------------------------------
 
+    def apply(self, event: Event, command: CommandPacket | None = None) -> list[StatePacket]:
+        """Take one event of a run, live or replayed; the packets a read completed.
+        `command`: the packet a live command event sent (see `command_sent`)."""
+        kind, t = event.kind, event.t
+        if kind == "bytes":
+            return self.feed(event.data, t)
+        if kind == "connected":
+            self.connected(t)
+        elif kind == "disconnected":
+            self.disconnected(t)
+        elif kind == "command":
+            self.command_sent(event.rc, t, command)
+        return []
+
     def connected(self, t: float) -> None:
         if self._started is None:
             self._started = t
         elif self._connected_at is None:
             self._reconnects += 1
             self.decoder.resync()
+        self.decoder.join()  # only the chunk cut by the connection may be excused
         self._connected_at = t
-        self._joining = True
         self._commands = 0
         self._now = t
 
@@ -212,32 +244,25 @@ class StreamMonitor:
         self._now = t
         decoder = self.decoder
         before = decoder.last_packet
-        packets = []
-        if self._joining:  # only the chunk cut by the connection may be excused
-            head, delimiter, _ = data.partition(DELIMITER)
-            head += delimiter
-            rejected = Counter(decoder.stats.rejected)
-            packets = decoder.feed(head, t)
-            self._joined.update(Counter(decoder.stats.rejected) - rejected)
-            self._joining = not delimiter
-            data = data[len(head) :]
-        if data:
-            packets += decoder.feed(data, t)
+        packets = decoder.feed(data, t)
         if not packets:
             return packets
         previous = before
+        previous_us = before.frames[1].time_us if before is not None else None
         last_arrival = before.arrival_time if before is not None else None
         for packet in packets:
             if last_arrival is not None:
                 self.arrival_intervals.add(round((t - last_arrival) * 1e6))
             last_arrival = t
-            if packet.outlier:
+            if packet.outlier:  # out of the books: its times would make false intervals
                 continue
-            first, second = packet.frames
-            if previous is not None and _contiguous(previous, packet):
-                self.fc_intervals.add(first.time_us - previous.frames[1].time_us)
-            self.fc_intervals.add(second.time_us - first.time_us)
-            previous = packet
+            first_us, second_us = packet.frames[0].time_us, packet.frames[1].time_us
+            assert first_us is not None and second_us is not None  # the decoder timed them
+            # Across a gap (lost packets, FC drops, a reset) the time spans frames never seen.
+            if previous is not None and previous_us is not None and _contiguous(previous, packet):
+                self.fc_intervals.add(first_us - previous_us)
+            self.fc_intervals.add(second_us - first_us)
+            previous, previous_us = packet, second_us
             if self.uplink is not None:
                 self.uplink.observe(packet, t)
         if previous is not None:
@@ -259,8 +284,8 @@ class StreamMonitor:
         if self._connected_at is None:
             return
         if command is None:
-            command = CommandPacket(tuple(rc), self._commands % SEQ_MODULUS,  # type: ignore[arg-type]
-                                    int(t * 1e6) & U32_MASK)  # fmt: skip
+            seq, tx_time_us = self._commands % SEQ_MODULUS, int(t * 1e6) & U32_MASK
+            command = CommandPacket(rc_values(rc), seq, tx_time_us)
         self._commands += 1
         round_trips = self.decoder.round_trips
         assert round_trips is not None
@@ -280,15 +305,15 @@ class StreamMonitor:
         if connected_at is not None:
             connected_s += now - connected_at
         duration_s = now - self._started if self._started is not None else 0.0
-        rejected = {
-            cause.value: totals.rejected[cause] - self._joined[cause] for cause in Rejection
-        }
+        joined = decoder.joined
+        rejected = {cause.value: totals.rejected[cause] - joined[cause] for cause in Rejection}
         rejected[OUTLIER] = totals.outliers
         fc = self.fc_intervals.summary()
         trips_rejected = _trips_rejected(decoder)
         clock = decoder.clock
         frames = totals.frames
         window = [n for t, n in self._recent if t >= now - RATE_WINDOW_S]
+        # Right after a (re)connect the window is as long as the connection, not 2 s.
         window_s = min(RATE_WINDOW_S, now - connected_at) if connected_at else RATE_WINDOW_S
         return StreamSummary(
             port=self.port,
@@ -308,7 +333,7 @@ class StreamMonitor:
             fc_drops=totals.fc_drops,
             e1=totals.e1,
             rejected=rejected,
-            sync_rejected=sum(self._joined.values()),
+            sync_rejected=sum(joined.values()),
             resets=totals.resets,
             wraps=totals.wraps,
             reconnects=self._reconnects,
@@ -341,3 +366,20 @@ def _trips_rejected(decoder: StateDecoder) -> Counter[RoundTripRejection]:
     if isinstance(decoder.clock, TwoWayClockEstimator):
         counts.update(decoder.clock.rejected)
     return counts
+
+
+class HealthSampler:
+    """The run's `StreamHealth`, taken from the monitor at most every `period_s`: what the
+    live loop hands its sinks with each read."""
+
+    def __init__(self, monitor: StreamMonitor, period_s: float = SLOW_PERIOD_NS / 1e9) -> None:
+        self._monitor = monitor
+        self._period_s = period_s
+        self.latest: StreamHealth | None = None
+
+    def sample(self, packets: Sequence[StatePacket], t: float) -> StreamHealth | None:
+        """The latest snapshot; a new one if `packets` arrived and the period is up."""
+        latest = self.latest
+        if packets and (latest is None or not 0 <= t - latest.t < self._period_s):
+            self.latest = latest = self._monitor.summary(t).health(packets[-1], t)
+        return latest

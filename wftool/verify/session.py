@@ -1,40 +1,32 @@
 """The verify API: judge an FSP stream, live or recorded; the CLI only renders what it returns.
 
-    session = VerifySession("socket://127.0.0.1:5762", duration_s=10,
-                            expected_rate_hz=1000.0)
-    result = session.run()
-    print(result.verdict.passed, result.summary.frames)
-    result.check()   # raises VerificationFailed naming the failed checks
-
-`VerifySession` wires what a run needs — the monitor (which decodes), the uplink pattern,
-the recording — runs the live loop and returns the summary with its verdict. `replay`
-does the same for a recording. `criteria_for` turns a user's limits into `Criteria`.
+session = VerifySession("socket://127.0.0.1:5762", duration_s=10, expected_rate_hz=1000.0)
+result = session.run()
+print(result.verdict.passed, result.summary.frames)
+result.check()   # raises VerificationFailed naming the failed checks
+replay(Path("run")).verdict   # the same for a recording
 """
 
 from __future__ import annotations
 
 import threading
 from collections.abc import Callable, Sequence
+from contextlib import ExitStack
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
 
 from wftool.errors import VerificationFailed
 from wftool.fc.msp import MspClient
 from wftool.fsp import DEFAULT_BAUDRATE, ESTIMATORS, SensorFrame, StatePacket
 from wftool.fsp.schedule import frame_rate_hz
 from wftool.interrupts import stop_on_signals
-from wftool.verify.criteria import Criteria, Verdict, judge
+from wftool.recording.events import Event, Sink, StreamHealth, run_metadata
+from wftool.recording.reader import RecordingReader
+from wftool.recording.recorder import RECORD_FORMATS, Recorder
+from wftool.verify.criteria import Criteria, Verdict, criteria_for, judge
 from wftool.verify.foxglove import DEFAULT_HOST, FoxgloveLive
 from wftool.verify.live import LiveOptions, run_live
 from wftool.verify.monitor import StreamMonitor, StreamSummary
-from wftool.verify.recording import (
-    RECORD_FORMATS,
-    Recorder,
-    RecordingReader,
-    replay_recording,
-    run_metadata,
-)
 from wftool.verify.uplink import UplinkTracker
 
 
@@ -43,34 +35,6 @@ def fc_frame_rate_hz(msp_url: str, fsp_rate_hz: float) -> float:
     asked over MSP on `msp_url` (its MSP port, not the FSP port)."""
     with MspClient.open(msp_url) as msp:
         return frame_rate_hz(fsp_rate_hz, msp.pid_cycle_us())
-
-
-def criteria_for(
-    *,
-    uplink: bool = False,
-    min_rate_hz: float | None = None,
-    max_spread_ms: float | None = None,
-    max_loss_pct: float | None = None,
-    max_drops_pct: float | None = None,
-    max_errors: int | None = None,
-    max_outage_s: float | None = None,
-) -> Criteria:
-    """The criteria for a user's limits: a limit left at None takes the default. A board and
-    the virtual FC are judged alike."""
-    defaults = Criteria()
-
-    def pick(value: Any, default: Any) -> Any:
-        return default if value is None else value
-
-    return Criteria(
-        min_rate_hz=pick(min_rate_hz, defaults.min_rate_hz),
-        max_spread_ms=pick(max_spread_ms, defaults.max_spread_ms),
-        max_loss_pct=pick(max_loss_pct, defaults.max_loss_pct),
-        max_drops_pct=pick(max_drops_pct, defaults.max_drops_pct),
-        max_errors=pick(max_errors, defaults.max_errors),
-        max_outage_s=pick(max_outage_s, defaults.max_outage_s),
-        uplink=uplink,
-    )
 
 
 @dataclass(frozen=True)
@@ -97,12 +61,13 @@ class VerifySession:
 
     `uplink_rate_hz` sends the uplink pattern (None sends nothing); `criteria.uplink` is
     what judges it (`criteria_for(uplink=True)`). `record_path` (in `record_format`, see
-    `wftool.verify.recording`) and `csv_path` are created here, so a path that cannot be
+    `wftool.recording.reader`) and `csv_path` are created here, so a path that cannot be
     written fails before the run, and finished when the run ends, however it ends
     (`close()` them when the session is never run). `foxglove_port` serves the stream live
     to Foxglove on `foxglove_host` (port 0: any free one; `live_view.url` says which),
     from now until `close()`. `clock` names the estimator of the frames' OBC times
-    (`wftool.fsp.ESTIMATORS`; None: the default).
+    (`wftool.fsp.ESTIMATORS`; None: the default). `sinks` get the run as the recording
+    does (`wftool.recording.events.Sink`; a ROS 2 node, say), and are closed with it.
     """
 
     def __init__(
@@ -120,6 +85,7 @@ class VerifySession:
         record_format: str = RECORD_FORMATS[0],
         foxglove_port: int | None = None,
         foxglove_host: str = DEFAULT_HOST,
+        sinks: Sequence[Sink] = (),
     ) -> None:
         clock = clock or ESTIMATORS[0]
         self.options = LiveOptions(url, baudrate, duration_s, uplink_rate_hz)
@@ -127,6 +93,7 @@ class VerifySession:
         uplink = UplinkTracker() if uplink_rate_hz is not None else None
         self.monitor = StreamMonitor(url, expected_rate_hz, uplink=uplink, clock=clock)
         self._recorder: Recorder | None = None
+        self._sinks = list(sinks)
         self.live_view: FoxgloveLive | None = None
         if foxglove_port is not None:  # first: a server closes without a trace, files do not
             self.live_view = FoxgloveLive(foxglove_port, foxglove_host)
@@ -149,26 +116,25 @@ class VerifySession:
         where it can stop (`wftool.interrupts`): the recording is finished, then the signal
         propagates (`KeyboardInterrupt`, `Terminated`) and `result()` judges what was seen."""
         stop = stop if stop is not None else threading.Event()
+        sinks: list[Sink] = [s for s in (self._recorder, self.live_view) if s is not None]
+        sinks += self._sinks
+        if on_packets is not None:
+            sinks.append(_PacketCallback(on_packets))
         with stop_on_signals(stop):
             try:
-                summary = run_live(
-                    self.options, self.monitor, self._recorder, on_refresh, stop,
-                    on_packets=on_packets, live_view=self.live_view,
-                )  # fmt: skip
+                summary = run_live(self.options, self.monitor, sinks, on_refresh, stop)
             finally:
                 self.close()
         return self.result(summary)
 
     def close(self) -> None:
-        """Stop the live view, then finish the recording files (if any)."""
-        live_view, recorder = self.live_view, self._recorder
-        self.live_view = self._recorder = None
-        try:
-            if live_view is not None:
-                live_view.close()
-        finally:
-            if recorder is not None:
-                recorder.close()
+        """Stop the live view, then finish the recording files, then close the other sinks
+        (each of them, whatever fails: the first failure is raised)."""
+        sinks = [s for s in (self.live_view, self._recorder) if s is not None] + self._sinks
+        self.live_view, self._recorder, self._sinks = None, None, []
+        with ExitStack() as closing:
+            for sink in reversed(sinks):  # an ExitStack closes the last pushed first
+                closing.callback(sink.close)
 
     def judge(self, summary: StreamSummary) -> Verdict:
         return judge(summary, self.criteria)
@@ -177,6 +143,43 @@ class VerifySession:
         """The result of what the run has seen so far (or of `summary`)."""
         summary = summary if summary is not None else self.monitor.summary()
         return VerifyResult(summary, self.judge(summary), self.monitor.latest)
+
+
+class _PacketCallback:
+    """`on_packets` as a sink: each read's packets, if any, and the time the read returned."""
+
+    def __init__(self, on_packets: Callable[[Sequence[StatePacket], float], None]) -> None:
+        self._on_packets = on_packets
+        self._t = 0.0
+
+    def event(self, event: Event) -> None:
+        self._t = event.t
+
+    def packets(self, packets: Sequence[StatePacket], health: StreamHealth | None) -> None:
+        if packets:
+            self._on_packets(packets, self._t)
+
+    def close(self) -> None:
+        pass
+
+
+def replay_recording(
+    path: Path | RecordingReader, expected_rate_hz: float | None = None, clock: str | None = None
+) -> StreamMonitor:
+    """A monitor that has seen exactly what the recorded run saw; `clock` None takes the
+    recorded run's estimator."""
+    recording = path if isinstance(path, RecordingReader) else RecordingReader(path)
+    metadata = recording.metadata
+    if expected_rate_hz is None:
+        expected_rate_hz = recording.expected_rate_hz()
+    uplink = UplinkTracker() if metadata.get("uplink_rate_hz") else None
+    clock = clock or metadata.get("clock") or ESTIMATORS[0]
+    monitor = StreamMonitor(
+        metadata.get("port", str(recording.path)), expected_rate_hz, uplink=uplink, clock=clock
+    )
+    for event in recording.events():
+        monitor.apply(event)
+    return monitor
 
 
 def replay(

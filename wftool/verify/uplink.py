@@ -28,6 +28,25 @@ def pattern_command(index: int, rate_hz: float) -> tuple[int, int, int, int, int
     return (roll, NEUTRAL, NEUTRAL, THROTTLE_MIN, THROTTLE_MIN, THROTTLE_MIN)
 
 
+class UplinkPattern:
+    """The pattern sent at `rate_hz` from `start`: `command()` is the one due at `due`;
+    `sent(t)` moves on (a command that could not be sent is sent again)."""
+
+    def __init__(self, rate_hz: float, start: float) -> None:
+        self.rate_hz = rate_hz
+        self.period = 1.0 / rate_hz
+        self.due = start
+        self.index = 0
+
+    def command(self) -> tuple[int, int, int, int, int, int]:
+        return pattern_command(self.index, self.rate_hz)
+
+    def sent(self, t: float) -> None:
+        self.index += 1
+        # A loop late by more than a period skips ahead: one command catches up, no burst.
+        self.due = max(self.due + self.period, t - self.period)
+
+
 @dataclass(frozen=True)
 class UplinkStats:
     commands_sent: int

@@ -19,9 +19,8 @@ from rosbags.typesys import Stores, get_typestore
 from tests.fc.test_msp_poller import Seen
 from wftool.fc.msp import Cmd, MspVersion, parse_analog, parse_attitude, parse_raw_imu, parse_rc
 from wftool.fc.msp_poller import PAPER_SCHEDULE, MspPoller, MspReply
-from wftool.fc.transport import open_port
-from wftool.sitl.process import VirtualFC
-from wftool.verify.msp_recording import (
+from wftool.link.transport import open_port
+from wftool.recording.msp import (
     ATTITUDE_TOPIC,
     BATTERY_TOPIC,
     IMU_TOPIC,
@@ -30,6 +29,7 @@ from wftool.verify.msp_recording import (
     msp_replies,
     poll_metadata,
 )
+from wftool.sitl.process import VirtualFC
 
 ACC_1G = 512
 

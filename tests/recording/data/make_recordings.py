@@ -2,7 +2,7 @@
 
 Run from an export of the commit that writes the layout to keep (these: 3cce0e6, one ROS 2
 `StreamEvent` message per event, in the chunks of the frames), with the export first on
-PYTHONPATH: `python tests/verify/data/make_recordings.py tests/verify/data`.
+PYTHONPATH: `python tests/recording/data/make_recordings.py tests/recording/data`.
 """
 
 from __future__ import annotations
@@ -10,10 +10,10 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from tests.verify.test_rosbag import flight
-from wftool.verify.monitor import StreamMonitor
-from wftool.verify.recording import Event, Recorder
-from wftool.verify.ros2 import HealthSampler
+from tests.recording.test_rosbag import flight
+from wftool.recording.events import Event
+from wftool.recording.recorder import Recorder
+from wftool.verify.monitor import HealthSampler, StreamMonitor
 
 RECORDINGS = {"ros2-streamevent.mcap": "ros2", "json.mcap": "json"}
 PORT = "socket://sim:5762"

@@ -1,37 +1,7 @@
-"""An MCAP recording written by a process of its own, so that recording never delays the
-thread that reads and stamps.
+"""An MCAP recording written by a process of its own (`McapProcess`, with `McapFile`'s
+interface), so that writing a chunk never delays the thread that reads and stamps.
 
-The `mcap` writer finalises each 1 MiB chunk in Python (records, message indexes) and
-compresses it: 6-13 ms with the GIL held, once every one to three seconds of a recording.
-Called from the thread that stamps each read with `time.monotonic()` (the MSP poller, the
-verify loop), it delayed those stamps by as much. A writer *thread* does not help enough:
-its chunk finalisation still holds the GIL, and a reader waking meanwhile waits the
-interpreter's switch interval (5 ms) for it, measured; shortening that interval is a
-setting of the whole process. A writer process shares no GIL with the reader.
-
-`McapProcess` has `McapFile`'s interface and runs one in a child Python process
-(`serve`). The caller's thread packs each message into a
-batch and hands the batch to the child's stdin every `FLUSH_PERIOD_S` (or `FLUSH_BYTES`):
-a pack per message and one pipe write per batch, tens of microseconds.
-
-What stays as with `McapFile`:
-
-- The file is created by the child before the constructor returns; a path that cannot be
-  written (or exists) fails there, as `UsageError`, before the stream starts.
-- A write failure (full disk) makes the child finish the file up to its last chunk and
-  report; the caller's next `add_message` (or `finish`) raises `RecordingError`, once, a
-  batch period or so after the child met it; later messages are dropped.
-- The child runs in a session of its own, which the terminal's Ctrl-C and hangup do not
-  reach, and ignores SIGINT, SIGTERM and SIGHUP sent to it: it ends when its input does.
-  `finish()` ends the file; so does the caller's death (SIGKILL, a crash), with everything
-  it had handed over (all but the last batch, at most `FLUSH_PERIOD_S`). Only when the
-  child is killed too (a power cut) is the file left without its ending, read by
-  `LinearReader` as far as it goes.
-- `message_counts` and `time_range` say what the file holds, once `finish()` returned.
-
-When the child falls behind (a stalled disk), the pipe holds up to `PIPE_BYTES`; beyond
-that the caller's batch write waits for the child: nothing is dropped, memory stays
-bounded, and the wait is counted (`waits`, `waited_s`).
+Why a process and what it keeps of `McapFile`'s guarantees: docs/recording.md.
 """
 
 from __future__ import annotations
@@ -50,11 +20,11 @@ import time
 from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import IO, Any
 
 from wftool.errors import RecordingError, UsageError
 from wftool.interrupts import STOP_SIGNALS
-from wftool.verify.mcapfile import McapFile
+from wftool.recording.mcapfile import McapFile
 
 FLUSH_PERIOD_S = 0.02
 """A batch goes to the writer at least this often while messages come: what the caller's
@@ -83,7 +53,7 @@ _MESSAGE = struct.Struct("<BIHQQ")
 _MESSAGE_FIELDS = struct.Struct("<HQQ")
 _BOOT = (
     "import json, sys; sys.path[:] = json.loads(sys.argv.pop(1)); "
-    "from wftool.verify.mcapprocess import serve; sys.exit(serve(*sys.argv[1:]))"
+    "from wftool.recording.mcapprocess import serve; sys.exit(serve(*sys.argv[1:]))"
 )
 """The writer's start: with the caller's import path, so it runs the caller's wftool."""
 _MESSAGE_OP, _SCHEMA_OP, _CHANNEL_OP, _METADATA_OP, _FINISH_OP, _DISCARD_OP = range(6)
@@ -134,7 +104,8 @@ class McapProcess:
             )
         except OSError as exc:
             raise UsageError(f"cannot start the recording's writer: {exc}") from None
-        self._input: BinaryIO = self._process.stdin
+        assert self._process.stdin is not None and self._process.stdout is not None  # pipes
+        self._input: IO[bytes] = self._process.stdin
         _grow_pipe(self._input.fileno())
         self._listener = threading.Thread(
             target=self._listen, name=f"mcap writer {path.name}", daemon=True
@@ -217,17 +188,18 @@ class McapProcess:
         self._flush()
 
     def _flush(self) -> None:
-        cut_point = self.before_chunk is None
+        before_chunk = self.before_chunk
+        cut_point = before_chunk is None
         now = time.monotonic()
         due = (
             now >= self._cut_due
             or self._since_cut >= CUT_BYTES
             or self._log_time - self._cut_log_time >= CUT_PERIOD_S * 1e9
         )
-        if not cut_point and not self._flushing and due:
+        if before_chunk is not None and not self._flushing and due:
             self._flushing = True
             try:
-                self.before_chunk()
+                before_chunk()
             finally:
                 self._flushing = False
             self._cut_due = now + CUT_PERIOD_S
@@ -293,7 +265,9 @@ class McapProcess:
         """The writer's answers, in a thread that waits on them (holding no GIL meanwhile):
         ids for the setup, and the outcome at the end, which may come at any time."""
         last: dict[str, Any] | None = None
-        for line in self._process.stdout:
+        replies = self._process.stdout
+        assert replies is not None  # a pipe
+        for line in replies:
             try:
                 last = json.loads(line)
             except ValueError:

@@ -35,11 +35,14 @@ STM32_VCP = UsbId(0x0483, 0x5740)
 """A Betaflight FC running its firmware: the STM32 USB virtual COM port."""
 STM32_DFU = UsbId(0x0483, 0xDF11)
 """An STM32 in its ROM DFU bootloader."""
+Port = serial.Serial
+"""What `open_port` returns, whatever the URL (pyserial's URL handlers implement
+`serial.Serial`'s interface, `in_waiting` and `reset_input_buffer` included)."""
 NETWORK_SCHEMES = {"socket": 5761, "rfc2217": 2217}
 """pyserial URLs that name a TCP host and port, with an example port for messages."""
 
 
-def open_port(url: str, baudrate: int = 115200, timeout: float = 1.0) -> serial.SerialBase:
+def open_port(url: str, baudrate: int = 115200, timeout: float = 1.0) -> Port:
     """Open a device path or pyserial URL (`socket://`, `rfc2217://`, …) for reading and writing.
 
     `timeout` is the read timeout in seconds; writes time out after the same interval so a
@@ -69,7 +72,7 @@ def port_errors(url: str) -> Iterator[None]:
 _READ_SIZE = 1 << 16
 
 
-def selectable_fd(port: serial.SerialBase) -> int | None:
+def selectable_fd(port: Port) -> int | None:
     """The port's descriptor for `select`, or None where it has none (rfc2217://)."""
     try:
         return port.fileno()
@@ -77,7 +80,7 @@ def selectable_fd(port: serial.SerialBase) -> int | None:
         return None
 
 
-def read_within(port: serial.SerialBase, fd: int | None, timeout: float) -> bytes:
+def read_within(port: Port, fd: int | None, timeout: float) -> bytes:
     """What arrives on `port` within `timeout` seconds; returns as soon as anything did.
 
     `fd` is `selectable_fd(port)`: with it, the wait is a `select` and the port may be

@@ -1,37 +1,9 @@
-"""ROS 2 recordings: a rosbag2 directory with one MCAP file (`ros2` profile, CDR messages).
+"""ROS 2 recordings: a rosbag2 directory with one MCAP file (`ros2` profile, CDR messages), or
+that MCAP file alone, which `ros2 bag play`, rosbags, Foxglove and PlotJuggler open as is.
 
-`ros2 bag play DIR`, `ros2 bag info DIR`, rosbags, Foxglove and PlotJuggler open it as it
-is: `DIR/metadata.yaml` (rosbag2 metadata version 8, what rosbag2 writes since Jazzy and
-reads back to Humble) next to `DIR/DIR_0.mcap`, named the way `ros2 bag record -o DIR`
-names it. A path ending in `.mcap` gets that MCAP file alone, without the directory: the
-same messages, which rosbag2 and rosbags open as a bag of one file and Foxglove opens as
-any MCAP file. Topics:
-
-| topic | type | rate |
-|---|---|---|
-| `/fsp/imu` | `sensor_msgs/msg/Imu` | every frame |
-| `/fsp/rpm` | `wftool_msgs/msg/MotorRpm` | every frame |
-| `/fsp/rc` | `wftool_msgs/msg/RcChannels` | on change, at least 10 Hz (1) |
-| `/fsp/battery` | `sensor_msgs/msg/BatteryState` | 10 Hz |
-| `/fsp/health` | `wftool_msgs/msg/StreamHealth` | each snapshot the caller passes (verify: 10 Hz) |
-| `/fsp/events` | `wftool_msgs/msg/StreamEvents` | every read, connect, disconnect, command (2) |
-
-(1) A change is written with the frame before it, so a plot steps rather than ramps.
-(2) In batches: one message per `EVENT_BATCH_S` of events at most, fewer when the writer
-process asks for them sooner (`mcapprocess.CUT_PERIOD_S`, `CUT_BYTES`). Earlier recordings
-held one `StreamEvent` per event; they are read as well.
-
-`/fsp/events` holds the raw bytes exactly as read, so `wftool replay` reproduces the run.
-Its messages go into chunks of their own, each written before the chunk of the frames
-read meanwhile (`McapFile.add_message(apart=True)`): reading a recording back decompresses
-the raw bytes alone, and a file cut short holds the bytes of every frame it holds.
-Batching them saves a message (31 bytes of record, 16 of index) per read.
-`BagFile` is the container alone (directory, MCAP file, metadata.yaml) for any topics: the
-MSP baseline's recording (`wftool.verify.msp_recording`) is one too.
-Message definitions: `wftool.verify.ros2`. A message's log time is when the OBC read it
-(rosbag2's receive time: `ros2 bag play` paces by it); `header.stamp` is when the FC
-captured it. `ros2 bag play` publishes the standard types anywhere; the `wftool_msgs`
-topics need that package built on the ROS side, and are skipped with a warning otherwise.
+`BagFile` is the container for any topics; `RosbagWriter` records the FSP stream's
+(`/fsp/imu`, `/fsp/rpm`, `/fsp/rc`, `/fsp/battery`, `/fsp/health`, `/fsp/events`). Layout,
+topics and rates: docs/recording.md.
 """
 
 from __future__ import annotations
@@ -45,11 +17,11 @@ from pathlib import Path
 from wftool import __version__
 from wftool.errors import RecordingError, UsageError
 from wftool.fsp import SensorFrame, StatePacket
-from wftool.verify import ros2
-from wftool.verify.mcapprocess import McapProcess
-from wftool.verify.ros2 import (
+from wftool.recording import ros2msg
+from wftool.recording.events import EVENT_TOPIC, Event, StreamHealth
+from wftool.recording.mcapprocess import McapProcess
+from wftool.recording.ros2msg import (
     BATTERY_TOPIC,
-    EVENT_TOPIC,
     HEALTH_TOPIC,
     IMU_TOPIC,
     RC_TOPIC,
@@ -57,17 +29,16 @@ from wftool.verify.ros2 import (
     SLOW_PERIOD_NS,
     FrameEncoder,
     MessageType,
-    StreamHealth,
     Throttle,
 )
 
 TOPICS: dict[str, MessageType] = {
-    IMU_TOPIC: ros2.IMU,
-    RPM_TOPIC: ros2.MOTOR_RPM,
-    RC_TOPIC: ros2.RC_CHANNELS,
-    BATTERY_TOPIC: ros2.BATTERY_STATE,
-    HEALTH_TOPIC: ros2.STREAM_HEALTH,
-    EVENT_TOPIC: ros2.STREAM_EVENTS,
+    IMU_TOPIC: ros2msg.IMU,
+    RPM_TOPIC: ros2msg.MOTOR_RPM,
+    RC_TOPIC: ros2msg.RC_CHANNELS,
+    BATTERY_TOPIC: ros2msg.BATTERY_STATE,
+    HEALTH_TOPIC: ros2msg.STREAM_HEALTH,
+    EVENT_TOPIC: ros2msg.STREAM_EVENTS,
 }
 METADATA_VERSION = 8
 EVENT_BATCH_S = 0.5
@@ -137,9 +108,16 @@ class BagFile:
                 raise
             raise UsageError(f"cannot write the recording: {exc}") from None
 
+    @property
+    def _writer(self) -> McapProcess:
+        """The writer process, while the recording is open."""
+        if self._out is None:
+            raise RuntimeError(f"the recording {self.mcap_path} is closed")
+        return self._out
+
     def add(self, channel: int, log_ns: int, data: bytes) -> None:
         """One message on `channel` (an id of `channels`), logged at `log_ns`."""
-        self._out.add_message(channel, log_ns, data)
+        self._writer.add_message(channel, log_ns, data)
 
     def __enter__(self) -> BagFile:
         return self
@@ -205,12 +183,12 @@ class BagFile:
         if self.metadata_path is not None:
             for path in (self.metadata_path, self.metadata_path.with_suffix(".yaml.tmp")):
                 path.unlink(missing_ok=True)
-        if created:
+        if created and self.directory is not None:
             self.directory.rmdir()
 
 
 class RosbagWriter(BagFile):
-    """The FSP stream's recording (the topics above), in a `BagFile` at `path`."""
+    """The FSP stream's recording (the `/fsp/...` topics), in a `BagFile` at `path`."""
 
     def __init__(self, path: Path, metadata_name: str, metadata: dict[str, str]) -> None:
         self._encoder = FrameEncoder()
@@ -220,7 +198,7 @@ class RosbagWriter(BagFile):
             "wall_offset_ns": str(self._encoder.wall_offset_ns),  # Unix minus OBC monotonic time
         }
         super().__init__(path, TOPICS, metadata_name, custom)
-        self._out.before_chunk = self._write_events  # a chunk's frames bring their bytes
+        self._writer.before_chunk = self._write_events  # a chunk's frames bring their bytes
         ids = self.channels
         self._imu, self._rpm, self._rc = ids[IMU_TOPIC], ids[RPM_TOPIC], ids[RC_TOPIC]
         self._battery, self._health = ids[BATTERY_TOPIC], ids[HEALTH_TOPIC]
@@ -231,30 +209,31 @@ class RosbagWriter(BagFile):
         self._rc_previous: tuple = ()  # (frame, stamp) of the latest frame seen
         self._last_health: StreamHealth | None = None
         self._log_ns = 0
-        self._event_batch: list[tuple[str, float, bytes, Sequence[int]]] = []
+        self._event_batch: list[Event] = []
 
     @property
     def wall_offset_ns(self) -> int:
         """Unix time minus OBC monotonic time, ns: how the stamps were made."""
         return self._encoder.wall_offset_ns
 
-    def event(self, kind: str, t: float, data: bytes = b"", rc: Sequence[int] = ()) -> None:
-        """A connect, disconnect, read or command at `t`, for `/fsp/events`."""
+    def event(self, event: Event) -> None:
+        """A connect, disconnect, read or command, for `/fsp/events`."""
+        t = event.t
         self._log_ns = self._encoder.stamp_ns(t)
         batch = self._event_batch
-        if batch and not 0 <= t - batch[0][1] < EVENT_BATCH_S:
+        if batch and not 0 <= t - batch[0].t < EVENT_BATCH_S:
             self._write_events()
-        self._event_batch.append((kind, t, data, rc))
+        self._event_batch.append(event)
 
     def _write_events(self) -> None:
         batch, self._event_batch = self._event_batch, []
         if batch:
-            log_ns = self._encoder.stamp_ns(batch[0][1])
-            self._out.add_message(self._events, log_ns, ros2.encode_events(batch), apart=True)
+            log_ns = self._encoder.stamp_ns(batch[0].t)
+            self._writer.add_message(self._events, log_ns, ros2msg.encode_events(batch), apart=True)
 
     def packets(self, packets: Sequence[StatePacket], health: StreamHealth | None = None) -> None:
         """The frames of `packets`, and `health` if it is a new snapshot."""
-        add, encoder = self._out.add_message, self._encoder
+        add, encoder = self._writer.add_message, self._encoder
         imu_id, rpm_id = self._imu, self._rpm
         imu, rpm = encoder.imu, encoder.rpm
         log_ns = self._log_ns
@@ -277,7 +256,7 @@ class RosbagWriter(BagFile):
             add(self._health, log_ns, encoder.health(health))
 
     def _rc_message(self, frame: SensorFrame, stamp: int, log_ns: int, rc: tuple) -> None:
-        add, encode = self._out.add_message, self._encoder.rc
+        add, encode = self._writer.add_message, self._encoder.rc
         if rc != self._rc_sent and self._rc_previous:
             previous, previous_stamp = self._rc_previous
             if previous_stamp != self._rc_sent_ns:  # the old value's last frame: a step

@@ -8,8 +8,8 @@ import socket
 import pytest
 
 from wftool.errors import PortError, UsageError
-from wftool.fc.transport import open_port, port_errors
 from wftool.fsp.reader import FspPort
+from wftool.link.transport import open_port, port_errors
 
 
 def test_missing_device_is_a_port_error() -> None:

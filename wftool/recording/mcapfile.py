@@ -1,20 +1,5 @@
-"""An MCAP file that stays readable when the disk fills up mid-run.
-
-The `mcap` writer keeps messages in a chunk in memory and writes each chunk (compressed,
-with its message index) in one go. When such a write fails (ENOSPC, EFBIG, EIO), the file
-is cut back to the end of the last complete chunk and closed with a Data End record and a
-Footer without a summary section: a valid MCAP that every reader scans (the `mcap`
-Python and C++ readers, rosbags, rosbag2 and Foxglove fall back to a linear scan). The
-messages of the chunk that failed (up to one chunk, about a second at 1 kHz) are lost;
-everything before is kept. The failure is raised once, as `RecordingError`; messages after
-it are dropped.
-
-The failed write's partial data is what frees the space the ~50-byte ending needs; only a
-disk that another process filled to the last block can leave the file without an ending.
-
-A file without an ending (its writer was killed: SIGKILL, a power cut) is read by
-`LinearReader`, record by record, as far as it goes, the readable part of a chunk cut
-short included; `Cut` says what was read and what was lost.
+"""An MCAP file that stays readable when the disk fills up mid-run (`McapFile`), and one cut
+short read as far as it goes (`LinearReader`, `Cut`); docs/recording.md says how.
 """
 
 from __future__ import annotations
@@ -23,10 +8,10 @@ import io
 import os
 import struct
 from collections import Counter
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO
+from typing import IO, cast
 
 import lz4.frame
 import zstandard
@@ -40,6 +25,7 @@ from mcap.records import (
     DataEnd,
     Footer,
     Header,
+    McapRecord,
     Message,
     MessageIndex,
     Metadata,
@@ -98,7 +84,8 @@ class McapFile:
             raise UsageError(f"cannot write the recording: {exc}") from None
         self._file = _TrackedFile(fd)
         # Chunks are cut here (`_write_chunks`), never by the writer on its own.
-        self._writer = Writer(self._file, chunk_size=2**62, compression=CompressionType.ZSTD)
+        writes_to = cast(IO[bytes], self._file)  # all a Writer uses: write, tell, flush
+        self._writer = Writer(writes_to, chunk_size=2**62, compression=CompressionType.ZSTD)
         self._safe_end = 0
         """File size at the end of the last complete write: where a failed file is cut."""
         self.failure: OSError | None = None
@@ -399,7 +386,7 @@ class LinearReader:
                 break
             opcode, length = _RECORD_HEAD.unpack(head)
             whole = length <= size - position - _RECORD_HEAD.size  # else the file stops in it
-            records: list[object] = []
+            records: Sequence[object] = ()
             if whole:
                 record = _record(opcode, handle.read(length), length)
                 position += _RECORD_HEAD.size + length
@@ -423,10 +410,10 @@ class LinearReader:
 _RECORD_HEAD = struct.Struct("<BQ")
 _CHUNK_HEAD = struct.Struct("<QQQII")
 """A Chunk's start and end log time, uncompressed size and CRC, compression name length."""
-_RECORDS = {
-    Opcode.HEADER: Header, Opcode.FOOTER: Footer, Opcode.SCHEMA: Schema,
-    Opcode.CHANNEL: Channel, Opcode.CHUNK: Chunk, Opcode.METADATA: Metadata,
-    Opcode.DATA_END: DataEnd,
+_RECORDS: dict[int, Callable[[ReadDataStream], McapRecord]] = {
+    Opcode.HEADER: Header.read, Opcode.FOOTER: Footer.read, Opcode.SCHEMA: Schema.read,
+    Opcode.CHANNEL: Channel.read, Opcode.CHUNK: Chunk.read, Opcode.METADATA: Metadata.read,
+    Opcode.DATA_END: DataEnd.read,
 }  # fmt: skip
 """The records a recording is read by; the others (indexes, statistics) are skipped."""
 
@@ -435,8 +422,8 @@ def _record(opcode: int, body: bytes, length: int) -> object:
     stream = ReadDataStream(io.BytesIO(body))
     if opcode == Opcode.MESSAGE:
         return Message.read(stream, length)
-    kind = _RECORDS.get(opcode)
-    return kind.read(stream) if kind is not None else None
+    read = _RECORDS.get(opcode)
+    return read(stream) if read is not None else None
 
 
 def _cut_chunk(rest: bytes) -> tuple[tuple[int, int] | None, list[object]]:

@@ -16,22 +16,23 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from tests.fsp.strategies import frames
 from wftool.fsp import SensorFrame
-from wftool.verify import ros2
-from wftool.verify.ros2 import FrameEncoder, StreamHealth
+from wftool.recording import ros2msg
+from wftool.recording.events import Event, StreamHealth
+from wftool.recording.ros2msg import FrameEncoder
 
 ALL_TYPES = (
-    ros2.IMU,
-    ros2.BATTERY_STATE,
-    ros2.RC_CHANNELS,
-    ros2.MOTOR_RPM,
-    ros2.ATTITUDE,
-    ros2.STREAM_HEALTH,
-    ros2.STREAM_EVENT,
-    ros2.STREAM_EVENTS,
+    ros2msg.IMU,
+    ros2msg.BATTERY_STATE,
+    ros2msg.RC_CHANNELS,
+    ros2msg.MOTOR_RPM,
+    ros2msg.ATTITUDE,
+    ros2msg.STREAM_HEALTH,
+    ros2msg.STREAM_EVENT,
+    ros2msg.STREAM_EVENTS,
 )
 
 
-def typestore_of(*kinds: ros2.MessageType):
+def typestore_of(*kinds: ros2msg.MessageType):
     """A type store that knows only what our schemas say (definitions and dependencies)."""
     store = get_typestore(Stores.EMPTY)
     for kind in kinds:
@@ -154,10 +155,10 @@ def test_health(store):
     ],
 )
 def test_event_round_trip_and_rosbags_agree(store, kind, data, rc):
-    message = ros2.encode_event(kind, 1234.000001, data, rc)
-    assert ros2.decode_event(message) == (kind, 1234.000001, data, rc)
+    message = ros2msg.encode_event(Event(kind, 1234.000001, data, rc))
+    assert ros2msg.decode_event(message) == (kind, 1234.000001, data, rc)
     decoded = store.deserialize_cdr(message, "wftool_msgs/msg/StreamEvent")
-    assert ros2.EVENT_KINDS[decoded.kind] == kind
+    assert ros2msg.EVENT_KINDS[decoded.kind] == kind
     assert bytes(decoded.data) == data and tuple(decoded.rc) == rc
     assert store.serialize_cdr(decoded, "wftool_msgs/msg/StreamEvent") == message
 
@@ -170,7 +171,7 @@ def _event(kind: str, t: float, data: bytes, rc: list[int]) -> tuple:
 event_batches = st.lists(
     st.builds(
         _event,
-        st.sampled_from(ros2.EVENT_KINDS),
+        st.sampled_from(ros2msg.EVENT_KINDS),
         st.floats(0.0, 1e7),
         st.binary(max_size=300),
         st.lists(st.integers(-32768, 32767), max_size=8),
@@ -184,26 +185,26 @@ event_batches = st.lists(
 def test_event_batches_round_trip_and_rosbags_agree(events):
     """A `StreamEvents` batch: our decoder gives the events back; rosbags, from the
     definition alone, reads the same arrays and writes the very same bytes."""
-    store = typestore_of(ros2.STREAM_EVENTS)
-    message = ros2.encode_events(events)
-    assert ros2.decode_events(message).events() == events
+    store = typestore_of(ros2msg.STREAM_EVENTS)
+    message = ros2msg.encode_events(events)
+    assert ros2msg.decode_events(message).events() == events
     decoded = store.deserialize_cdr(message, "wftool_msgs/msg/StreamEvents")
     assert decoded.t.tolist() == [t for _, t, _, _ in events]
-    assert [ros2.EVENT_KINDS[k] for k in decoded.kind.tolist()] == [k for k, *_ in events]
+    assert [ros2msg.EVENT_KINDS[k] for k in decoded.kind.tolist()] == [k for k, *_ in events]
     assert bytes(decoded.data) == b"".join(data for _, _, data, _ in events)
     assert decoded.rc.tolist() == [v for *_, rc in events for v in rc]
     assert store.serialize_cdr(decoded, "wftool_msgs/msg/StreamEvents") == message
 
 
 def test_a_damaged_event_batch_is_a_clear_error():
-    message = ros2.encode_events([("bytes", 1.0, b"abc", ()), ("connected", 2.0, b"", ())])
+    message = ros2msg.encode_events([("bytes", 1.0, b"abc", ()), ("connected", 2.0, b"", ())])
     with pytest.raises(ValueError, match="cut short"):
-        ros2.decode_events(message[:-8])
+        ros2msg.decode_events(message[:-8])
     with pytest.raises(ValueError, match="do not add up"):
         sizes = b"\x02\x00\x00\x00" + bytes(4)  # the read's 3 bytes said to be 2
-        ros2.decode_events(message.replace(b"\x03\x00\x00\x00" + bytes(4), sizes))
+        ros2msg.decode_events(message.replace(b"\x03\x00\x00\x00" + bytes(4), sizes))
     with pytest.raises(ValueError, match="not little-endian CDR"):
-        ros2.decode_events(b"\x00\x00" + message[2:])
+        ros2msg.decode_events(b"\x00\x00" + message[2:])
 
 
 @settings(max_examples=200, deadline=None)

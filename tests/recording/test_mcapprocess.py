@@ -9,10 +9,10 @@ from pathlib import Path
 import pytest
 from mcap.reader import make_reader
 
-from tests.verify.test_rosbag import file_size_limit
+from tests.recording.test_rosbag import file_size_limit
 from wftool.errors import RecordingError, UsageError
-from wftool.verify.mcapfile import CHUNK_SIZE
-from wftool.verify.mcapprocess import McapProcess
+from wftool.recording.mcapfile import CHUNK_SIZE
+from wftool.recording.mcapprocess import McapProcess
 
 
 def open_writer(path: Path) -> tuple[McapProcess, int]:

@@ -29,10 +29,13 @@ from rosbags.typesys import Stores, get_typestore
 from wftool.errors import RecordingError, UsageError
 from wftool.fsp import SensorFrame, StatePacket
 from wftool.fsp.encoder import encode_state
-from wftool.verify.monitor import StreamMonitor
-from wftool.verify.recording import Event, Recorder, read_recording, replay_recording
-from wftool.verify.ros2 import HealthSampler, StreamHealth, decode_events
-from wftool.verify.rosbag import EVENT_BATCH_S
+from wftool.recording.events import Event, StreamHealth
+from wftool.recording.reader import read_recording
+from wftool.recording.recorder import Recorder
+from wftool.recording.ros2msg import decode_events
+from wftool.recording.rosbag import EVENT_BATCH_S
+from wftool.verify.monitor import HealthSampler, StreamMonitor
+from wftool.verify.session import replay_recording
 
 PERIOD_US = 953
 PACKETS_PER_READ = 3
@@ -389,9 +392,9 @@ def test_full_tmpfs_ends_the_run_with_a_readable_bag(tmp_path: Path):
         f"""
         import shutil, sys
         from pathlib import Path
-        from tests.verify.test_rosbag import flight, record
+        from tests.recording.test_rosbag import flight, record
         from wftool.errors import RecordingError
-        from wftool.verify.recording import Recorder
+        from wftool.recording.recorder import Recorder
         recorder = Recorder(Path({str(mount)!r}) / "run", None, {{}})
         try:
             record(recorder, flight(40000))

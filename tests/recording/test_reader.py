@@ -10,19 +10,14 @@ import pytest
 from mcap.reader import make_reader
 
 from tests.fsp.test_twoway import RC
-from tests.verify.data.make_recordings import RECORDINGS, events, run
+from tests.recording.data.make_recordings import RECORDINGS, events, run
 from tests.verify.test_monitor import feed_steady, feed_two_way
 from wftool.errors import UsageError
+from wftool.recording.events import Event, run_metadata
+from wftool.recording.reader import RecordingReader, recording_columns
+from wftool.recording.recorder import FRAME_TOPIC, Recorder
 from wftool.verify.monitor import StreamMonitor
-from wftool.verify.recording import (
-    FRAME_TOPIC,
-    Event,
-    Recorder,
-    RecordingReader,
-    recording_columns,
-    replay_recording,
-    run_metadata,
-)
+from wftool.verify.session import replay_recording
 
 DATA = Path(__file__).parent / "data"
 
@@ -122,7 +117,7 @@ def test_replay_pairs_time_replies_with_the_recorded_commands(tmp_path: Path, re
 
 @pytest.mark.parametrize("name", sorted(RECORDINGS))
 def test_recordings_in_an_earlier_layout_still_read(name: str):
-    """Files as wftool 3cce0e6 wrote them (tests/verify/data/make_recordings.py): one ROS 2
+    """Files as wftool 3cce0e6 wrote them (tests/recording/data/make_recordings.py): one ROS 2
     `StreamEvent` per event in the frames' chunks, or JSON. Every event comes back, replay
     gives what the live run gave, and the columns what the decoder fed those reads gives."""
     path = DATA / name

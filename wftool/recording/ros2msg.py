@@ -1,34 +1,8 @@
-"""ROS 2 messages of the FSP stream: `.msg` definitions and their CDR bytes.
+"""ROS 2 messages of the FSP stream: their `.msg` definitions and CDR bytes, encoded once here
+for the recording and the live view (stamps, units, covariances: docs/recording.md).
 
-What the ROS 2 recording (`wftool.verify.rosbag`) and the live Foxglove view
-(`wftool.verify.foxglove`) publish, encoded once here:
-
-- `sensor_msgs/msg/Imu` per frame: `header.stamp` is the frame's capture time on the OBC
-  clock as Unix time (`SensorFrame.obc_time`; a frame decoded without arrival times falls
-  back to its packet's arrival, or to now). The estimate exists from the first packet on,
-  anchored at that packet's arrival; `StreamHealth.clock_locked` says when the estimator
-  has converged (its first update, 100 packets in). Orientation is the FSP quaternion as
-  sent (Q15, not renormalised; a level craft may show w = −1, the same rotation);
-  angular velocity in rad/s; linear acceleration in m/s² (g × 9.80665). Covariances
-  follow sensor_msgs and REP-145: all zeros = unknown; element 0 = −1 = no estimate at
-  all (no attitude in the frame, or no accelerometer calibration: acc_1g = 0).
-  `frame_id` is `fc`: Betaflight's body axes exactly as the FC reports them, not
-  converted to REP-103.
-- `sensor_msgs/msg/BatteryState`: voltage; the FC measures nothing else (NaN, per the
-  message's convention).
-- `wftool_msgs/msg/{RcChannels,MotorRpm,Attitude,StreamHealth,StreamEvents}`, our own
-  types, with their definitions below (and `StreamEvent`, one event a message, which
-  earlier recordings hold).
-
-Each schema is the message's definition followed by those of the types it uses, in the
-`ros2msg` form MCAP and the Foxglove WebSocket protocol expect.
-
-Why our own CDR encoder: every message here has a fixed layout, so one precompiled
-`struct` per type packs a message in about a microsecond. The generic serializers walk the
-definition per message: mcap-ros2-support took 25 µs per `Imu` on this machine, a
-quarter of the 1 kHz recording budget (5 % of a core = 50 µs per frame) for one topic.
-The tests prove the bytes with an independent reader (rosbags' CDR deserializer, driven by
-the definitions stored in the file) and against rosbags' own serializer.
+    encoder = FrameEncoder()
+    data = encoder.imu(frame, encoder.frame_stamp_ns(frame, packet.arrival_time))
 """
 
 from __future__ import annotations
@@ -41,8 +15,8 @@ from array import array
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from wftool.fsp import SensorFrame, StatePacket
-from wftool.verify.monitor import StreamMonitor, StreamSummary
+from wftool.fsp import SensorFrame
+from wftool.recording.events import EVENT_KINDS, Event, StreamHealth
 
 FRAME_ID = "fc"
 STANDARD_GRAVITY = 9.80665
@@ -55,7 +29,6 @@ RC_TOPIC = "/fsp/rc"
 ATTITUDE_TOPIC = "/fsp/attitude"
 BATTERY_TOPIC = "/fsp/battery"
 HEALTH_TOPIC = "/fsp/health"
-EVENT_TOPIC = "/fsp/events"
 CDR_LE = b"\x00\x01\x00\x00"
 """The encapsulation header of little-endian plain CDR, as ROS 2 writes it."""
 
@@ -222,9 +195,6 @@ STREAM_EVENTS = _message_type("wftool_msgs/msg/StreamEvents", STREAM_EVENTS_MSG)
 """Events in batches (`rosbag.EVENT_BATCH_S` of them a message): what recordings hold now."""
 MSP_RC = _message_type("wftool_msgs/msg/MspRc", MSP_RC_MSG, *_HEADER_USES)
 
-EVENT_KINDS = ("connected", "disconnected", "bytes", "command")
-"""`StreamEvent.kind` values in order (CONNECTED = 0, ...)."""
-
 
 class Throttle:
     """Lets a stamp through at most once per `period_ns` (and again when stamps go back)."""
@@ -239,67 +209,6 @@ class Throttle:
             return False
         self.last_ns = stamp_ns
         return True
-
-
-@dataclass(frozen=True)
-class StreamHealth:
-    """A snapshot of the stream's counters: what `/fsp/health` carries."""
-
-    t: float
-    """OBC monotonic time of the snapshot, s."""
-    seq: int
-    epoch: int
-    e1: bool
-    clock_locked: bool
-    connected: bool
-    packets: int
-    frames: int
-    lost_frames: int
-    lost_packets: int
-    fc_drops: int
-    rejected_chunks: int
-    resets: int
-    reconnects: int
-
-    @classmethod
-    def of(cls, summary: StreamSummary, latest: StatePacket | None, t: float) -> StreamHealth:
-        """The counters of `summary` (taken at `t`), with the latest packet's seq and epoch."""
-        return cls(
-            t=t,
-            seq=latest.seq if latest is not None else 0,
-            epoch=latest.epoch if latest is not None else 0,
-            e1=bool(summary.e1),
-            clock_locked=summary.clock is not None and summary.clock.locked,
-            connected=summary.connected,
-            packets=summary.packets,
-            frames=summary.frames,
-            lost_frames=summary.lost_frames,
-            lost_packets=summary.lost_packets,
-            fc_drops=summary.fc_drops,
-            rejected_chunks=summary.errors,
-            resets=summary.resets,
-            reconnects=summary.reconnects,
-        )
-
-
-class HealthSampler:
-    """The run's `StreamHealth`, taken from the monitor at most every `period_s`.
-
-    What verify passes to the recorder and the live view with each read: the same object
-    until a new snapshot is due, so they write or publish each snapshot once.
-    """
-
-    def __init__(self, monitor: StreamMonitor, period_s: float = SLOW_PERIOD_NS / 1e9) -> None:
-        self._monitor = monitor
-        self._period_s = period_s
-        self.latest: StreamHealth | None = None
-
-    def sample(self, packets: Sequence[StatePacket], t: float) -> StreamHealth | None:
-        """The latest snapshot; a new one if `packets` arrived and the period is up."""
-        latest = self.latest
-        if packets and (latest is None or not 0 <= t - latest.t < self._period_s):
-            self.latest = latest = StreamHealth.of(self._monitor.summary(t), packets[-1], t)
-        return latest
 
 
 # Offsets below count from the end of the 4-byte encapsulation header, as CDR alignment does.
@@ -448,8 +357,9 @@ def msp_rc_message(stamp_ns: int, channels: Sequence[int]) -> bytes:
     return head + struct.pack(f"<{len(channels)}H", *channels)
 
 
-def encode_event(kind: str, t: float, data: bytes = b"", rc: Sequence[int] = ()) -> bytes:
+def encode_event(event: Event) -> bytes:
     """A `StreamEvent` message."""
+    kind, t, data, rc = event
     head = _EVENT_HEAD.pack(CDR_LE, t, EVENT_KINDS.index(kind), len(data))
     padding = b"\0" * (-len(data) % 4)  # the rc sequence's length is 4-aligned
     return b"".join((head, data, padding, _COUNT.pack(len(rc)), struct.pack(f"<{len(rc)}h", *rc)))
@@ -470,20 +380,20 @@ class EventArrays:
     rc: array
     """int16: the COMMAND events' RC values, one after the other."""
 
-    def events(self) -> list[tuple[str, float, bytes, tuple[int, ...]]]:
-        """(kind, t, data, rc) per event, as `encode_events` took them."""
+    def events(self) -> list[Event]:
+        """The events, as `encode_events` took them."""
         events = []
         data_at = rc_at = 0
         for t, kind, size in zip(self.t, self.kind, self.size):
             name = EVENT_KINDS[kind]
             if name == "bytes":
-                events.append((name, t, self.data[data_at : data_at + size], ()))
+                events.append(Event(name, t, self.data[data_at : data_at + size]))
                 data_at += size
             elif name == "command":
-                events.append((name, t, b"", tuple(self.rc[rc_at : rc_at + size])))
+                events.append(Event(name, t, rc=tuple(self.rc[rc_at : rc_at + size])))
                 rc_at += size
             else:
-                events.append((name, t, b"", ()))
+                events.append(Event(name, t))
         return events
 
 
@@ -508,8 +418,8 @@ def _sequence(parts: list[bytes], at: int, values: bytes, count: int, align: int
     return at + inner + len(values)
 
 
-def encode_events(events: Sequence[tuple[str, float, bytes, Sequence[int]]]) -> bytes:
-    """A `StreamEvents` message of (kind, t, data, rc) events, in order."""
+def encode_events(events: Sequence[Event]) -> bytes:
+    """A `StreamEvents` message of `events`, in order."""
     times, kinds, sizes = array("d"), bytearray(), array("I")
     data: list[bytes] = []
     rc = array("h")
@@ -571,8 +481,8 @@ def decode_events(message: bytes) -> EventArrays:
     return EventArrays(times, kinds.tobytes(), sizes, data.tobytes(), rc)
 
 
-def decode_event(message: bytes) -> tuple[str, float, bytes, tuple[int, ...]]:
-    """(kind, t, data, rc) of a `StreamEvent` message, as `encode_event` took them."""
+def decode_event(message: bytes) -> Event:
+    """The event of a `StreamEvent` message, as `encode_event` took it."""
     encapsulation, t, kind, size = _EVENT_HEAD.unpack_from(message)
     if encapsulation != CDR_LE:
         raise ValueError(f"not little-endian CDR: {encapsulation.hex()}")
@@ -581,4 +491,4 @@ def decode_event(message: bytes) -> tuple[str, float, bytes, tuple[int, ...]]:
     rc_at = start + size + (-size % 4)
     (count,) = _COUNT.unpack_from(message, rc_at)
     rc = struct.unpack_from(f"<{count}h", message, rc_at + 4)
-    return EVENT_KINDS[kind], t, data, rc
+    return Event(EVENT_KINDS[kind], t, data, rc)

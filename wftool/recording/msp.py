@@ -1,29 +1,10 @@
-"""The MSP baseline's recording: what `wftool record msp` polled, as ROS 2 messages.
+"""The MSP baseline's recording: what `wftool record msp` polled, as ROS 2 messages in the
+same kind of bag as the FSP stream's, stamped on reception (MSP carries no FC time).
 
-The same container as the FSP stream's recording (`wftool.verify.rosbag.BagFile`: a rosbag2
-directory, or one `.mcap` file) with the same raw log, on topics of its own:
+    result = record_msp("socket://127.0.0.1:5761", Path("msp"), duration_s=30)
+    replies, connections = msp_replies(RecordingReader(path, EVENT_TOPIC, METADATA_NAME))
 
-| topic | type | one per |
-|---|---|---|
-| `/msp/imu` | `sensor_msgs/msg/Imu` | MSP_RAW_IMU reply (1) |
-| `/msp/attitude` | `wftool_msgs/msg/Attitude` | MSP_ATTITUDE reply |
-| `/msp/rc` | `wftool_msgs/msg/MspRc` | MSP_RC reply (every channel the FC reports) |
-| `/msp/battery` | `sensor_msgs/msg/BatteryState` | MSP_ANALOG reply (voltage, current) |
-| `/msp/events` | `wftool_msgs/msg/StreamEvent` | read, request written, connect, disconnect (2) |
-
-(1) Angular velocity in rad/s; linear acceleration in m/s² when the FC's 1 g in raw units
-(`acc_1g`, which MSP does not report) is given, else marked "no estimate" (covariance
-element 0 = −1, REP-145); no orientation (MSP_ATTITUDE is on its own topic).
-(2) A read is a BYTES event with the bytes as read; a request is a COMMAND event with the
-request's bytes in `data`.
-
-Stock MSP carries no FC time: every message's `header.stamp` and log time are the reply's
-*reception* time (the OBC's `time.monotonic()` when the read that completed it returned)
-as Unix time. `/msp/events` keeps the bytes both ways with their monotonic times, so
-`msp_replies` decodes the replies again exactly as the poller did, stamps included; that is
-what `wftool analyze timing` reads. Metadata `wftool.msp`: the port, the schedule, the
-window, the MSP version, the rate the IMU was polled at (`expected_rate_hz`),
-`serial_update_rate_hz` when known, and at the end the poll's counts (`result`, JSON).
+Topics and metadata: docs/recording.md.
 """
 
 from __future__ import annotations
@@ -32,7 +13,7 @@ import json
 import math
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from wftool import __version__
@@ -56,11 +37,12 @@ from wftool.fc.msp_poller import (
     check_poll,
     describe,
 )
-from wftool.fc.transport import open_port
+from wftool.link.transport import open_port
 from wftool.progress import Log, quiet
-from wftool.verify import ros2
-from wftool.verify.recording import RecordingReader
-from wftool.verify.rosbag import BagFile
+from wftool.recording import ros2msg
+from wftool.recording.events import Event, EventKind
+from wftool.recording.reader import RecordingReader
+from wftool.recording.rosbag import BagFile
 
 IMU_TOPIC = "/msp/imu"
 ATTITUDE_TOPIC = "/msp/attitude"
@@ -68,12 +50,12 @@ RC_TOPIC = "/msp/rc"
 BATTERY_TOPIC = "/msp/battery"
 EVENT_TOPIC = "/msp/events"
 METADATA_NAME = "wftool.msp"
-TOPICS: dict[str, ros2.MessageType] = {
-    IMU_TOPIC: ros2.IMU,
-    ATTITUDE_TOPIC: ros2.ATTITUDE,
-    RC_TOPIC: ros2.MSP_RC,
-    BATTERY_TOPIC: ros2.BATTERY_STATE,
-    EVENT_TOPIC: ros2.STREAM_EVENT,
+TOPICS: dict[str, ros2msg.MessageType] = {
+    IMU_TOPIC: ros2msg.IMU,
+    ATTITUDE_TOPIC: ros2msg.ATTITUDE,
+    RC_TOPIC: ros2msg.MSP_RC,
+    BATTERY_TOPIC: ros2msg.BATTERY_STATE,
+    EVENT_TOPIC: ros2msg.STREAM_EVENT,
 }
 _DEG = math.pi / 180.0
 
@@ -103,7 +85,7 @@ class MspRecorder(BagFile):
     def __init__(self, path: Path, metadata: dict[str, str], acc_1g: int | None = None) -> None:
         self.wall_offset_ns = time.time_ns() - time.monotonic_ns()
         """Unix time minus OBC monotonic time, ns: how the stamps were made."""
-        self._acc_scale = ros2.STANDARD_GRAVITY / acc_1g if acc_1g else None
+        self._acc_scale = ros2msg.STANDARD_GRAVITY / acc_1g if acc_1g else None
         custom = {
             **metadata,
             "acc_1g": str(acc_1g or ""),
@@ -113,7 +95,7 @@ class MspRecorder(BagFile):
         super().__init__(path, TOPICS, METADATA_NAME, custom)
         ids = self.channels
         self._events = ids[EVENT_TOPIC]
-        self._sensors = {
+        self._sensors: dict[int, tuple[int, Callable[[int, bytes], bytes]]] = {
             Cmd.RAW_IMU: (ids[IMU_TOPIC], self._imu),
             Cmd.ATTITUDE: (ids[ATTITUDE_TOPIC], _attitude),
             Cmd.RC: (ids[RC_TOPIC], _rc),
@@ -123,8 +105,8 @@ class MspRecorder(BagFile):
     def _stamp_ns(self, t: float) -> int:
         return self.wall_offset_ns + int(t * 1e9)
 
-    def _event(self, kind: str, t: float, data: bytes = b"") -> None:
-        self.add(self._events, self._stamp_ns(t), ros2.encode_event(kind, t, data))
+    def _event(self, kind: EventKind, t: float, data: bytes = b"") -> None:
+        self.add(self._events, self._stamp_ns(t), ros2msg.encode_event(Event(kind, t, data)))
 
     def connected(self, t: float) -> None:
         self._event("connected", t)
@@ -155,7 +137,7 @@ class MspRecorder(BagFile):
         imu = parse_raw_imu(payload)
         scale = self._acc_scale
         acc = None if scale is None else tuple(value * scale for value in imu.acc)
-        return ros2.imu_message(stamp_ns, [value * _DEG for value in imu.gyro], acc)
+        return ros2msg.imu_message(stamp_ns, [value * _DEG for value in imu.gyro], acc)
 
     def finish(self, result: PollResult) -> None:
         """Keep the poll's counts (in the MCAP metadata and metadata.yaml)."""
@@ -165,16 +147,18 @@ class MspRecorder(BagFile):
 
 def _attitude(stamp_ns: int, payload: bytes) -> bytes:
     attitude = parse_attitude(payload)
-    return ros2.attitude_message(stamp_ns, attitude.roll_deg, attitude.pitch_deg, attitude.yaw_deg)
+    return ros2msg.attitude_message(
+        stamp_ns, attitude.roll_deg, attitude.pitch_deg, attitude.yaw_deg
+    )
 
 
 def _rc(stamp_ns: int, payload: bytes) -> bytes:
-    return ros2.msp_rc_message(stamp_ns, parse_rc(payload))
+    return ros2msg.msp_rc_message(stamp_ns, parse_rc(payload))
 
 
 def _battery(stamp_ns: int, payload: bytes) -> bytes:
     analog = parse_analog(payload)
-    return ros2.battery_message(stamp_ns, analog.voltage_v, analog.current_a)
+    return ros2msg.battery_message(stamp_ns, analog.voltage_v, analog.current_a)
 
 
 def msp_replies(path: Path | RecordingReader) -> tuple[dict[str, str], list[list[MspReply]]]:
@@ -215,7 +199,7 @@ def record_msp(
     stop: threading.Event | None = None,
     log: Log = quiet,
 ) -> PollResult:
-    """Poll the FC's MSP port `url` and record it to `path` (see the module docstring and
+    """Poll the FC's MSP port `url` and record it to `path` (docs/recording.md,
     `wftool.fc.msp_poller`); the recording is finished however the run ends. A port that
     cannot be opened leaves no recording behind."""
     check_poll(schedule, window)

@@ -1,15 +1,6 @@
-"""CRC-8 with polynomial 0xD5, MSB-first, no final XOR: FSP's (spec §1, init 0xFF) and MSP v2's.
-
-MSP v2's checksum is CRC-8/DVB-S2: the same polynomial from init 0x00, so both protocols use
-`crc8`, the one implementation (`wftool.fc.msp` passes `init=DVB_S2_INIT`).
-
-Table-driven. `crc8` is the plain byte-at-a-time form. `crc8_residues` checks many packets
-of one length at once, without a Python loop per byte: the CRC is linear, so the register
-after a packet is a constant XOR one table lookup per byte position. Each position is then
-a single `bytes.translate` over that byte of every packet, and the XOR of all positions is
-a few big-integer folds. On a read of ~35 packets that is ~4x faster than `crc8` per
-packet, and it is what lets a replay decode at >100k packets/s without a compiled CRC.
-`crc8_check_words` is the same idea over NumPy rows, for the columnar decoder.
+"""CRC-8 with polynomial 0xD5, MSB-first, no final XOR: FSP's (spec §1, init 0xFF) and MSP v2's
+(CRC-8/DVB-S2, init 0x00). `crc8` is the plain form; `crc8_residues` and `crc8_check_words`
+check many packets at once (docs/design.md).
 """
 
 from __future__ import annotations
