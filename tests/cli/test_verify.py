@@ -197,6 +197,16 @@ def recorded(capsys, record, table) -> tuple[int, int, int]:
     return json.loads(out)["frames"], rows, summary.statistics.channel_message_counts[channel]
 
 
+def wait_for_rows(table: Path, rows: int, timeout: float = 60.0) -> None:
+    """Until the CSV file a run writes holds `rows` lines (it is written as frames come)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if table.exists() and table.read_bytes().count(b"\n") >= rows:
+            return
+        time.sleep(0.05)
+    raise AssertionError(f"{table} did not reach {rows} rows in {timeout} s")
+
+
 @pytest.mark.parametrize(
     "sig, code, said",
     [(signal.SIGINT, 130, "aborted"), (signal.SIGTERM, 143, "terminated (SIGTERM)"),
@@ -209,7 +219,7 @@ def test_a_signal_stops_a_timed_recording_run_cleanly(sig, code, said, capsys, t
     with FakeFc() as fc:
         process = wftool("verify", "--stream", "--port", fc.url, "--duration", "60",
                          "--record", str(record), "--csv", str(table))  # fmt: skip
-        time.sleep(3.0)
+        wait_for_rows(table, 1100)  # the run has read that much, however loaded the machine
         process.send_signal(sig)
         out, err = process.communicate(timeout=30)
     assert process.returncode == code, err
