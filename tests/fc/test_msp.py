@@ -89,6 +89,32 @@ def test_a_silent_peer_times_out() -> None:
             assert 0.3 <= time.monotonic() - started < 2
 
 
+class ScriptedStatus(MspClient):
+    """An MSP client whose MSP_STATUS reads give `cycles` in turn (no link)."""
+
+    def __init__(self, cycles: list[int]) -> None:
+        self._cycles = iter(cycles)
+
+    def pid_cycle_us(self) -> int:
+        return next(self._cycles)
+
+
+def test_the_looptime_is_no_single_read_one_late_run_cannot_skew_it() -> None:
+    # one read caught the interval around a 44.8 ms stall: taken alone, it made a 1 kHz
+    # stream's expected rate 22 Hz, and the verdict's rate check a formality
+    reads = [125, 125, 44843, 125, 125, 125, 125, 125, 125]
+    assert ScriptedStatus(reads).pid_looptime_us(spacing_s=0) == 125
+
+
+def test_a_looptime_of_no_whole_us_is_kept_by_the_mean() -> None:
+    reads = [317, 318, 318, 317, 318, 318, 317, 318, 318]  # 3148 Hz: 317.66 µs
+    assert ScriptedStatus(reads).pid_looptime_us(spacing_s=0) == pytest.approx(317.67, abs=0.01)
+
+
+def test_a_loop_that_does_not_run_has_no_looptime() -> None:
+    assert ScriptedStatus([0] * 9).pid_looptime_us(spacing_s=0) == 0
+
+
 @pytest.mark.parametrize("version", [MspVersion.V1, MspVersion.V2])
 def test_identify_sitl(virtual_fc: VirtualFC, version: MspVersion) -> None:
     with MspClient.open(virtual_fc.url, version=version) as msp:

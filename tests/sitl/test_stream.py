@@ -89,7 +89,7 @@ def test_every_task_runs_at_its_configured_rate(
     collector.start()
     time.sleep(SETTLE_S)
     with MspClient.open(moving_fc.msp_url) as msp:
-        looptime_us = msp.pid_cycle_us()
+        looptime_us = msp.pid_looptime_us()
     session = CliSession.open(moving_fc.msp_url)  # left open: `exit` would reboot the FC
     try:
         serial_hz = int(session.get("serial_update_rate_hz").value)
@@ -122,7 +122,7 @@ def test_frames_are_one_lockstep_interval_apart_with_nothing_dropped(
     moving_fc: VirtualFcSession,
 ) -> None:
     with MspClient.open(moving_fc.msp_url) as msp:
-        looptime_us = msp.pid_cycle_us()
+        looptime_us = msp.pid_looptime_us()
     collector = Collector(moving_fc.fsp_url)
     collector.start()
     time.sleep(4.0)
