@@ -14,6 +14,7 @@ import time
 from array import array
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 from wftool.fsp import SensorFrame
 from wftool.recording.events import EVENT_KINDS, Event, StreamHealth
@@ -86,75 +87,23 @@ float32[] cell_temperature
 string location
 string serial_number
 """
-RC_CHANNELS_MSG = """\
-# The RC values the FC is using (µs-style, 1000-2000), as FSP streams them.
-std_msgs/Header header
-int16 roll
-int16 pitch
-int16 yaw
-int16 throttle
-int16 aux3
-int16 aux4
-"""
-MOTOR_RPM_MSG = """\
-# Motor speed, mechanical RPM from bidirectional DShot, motors 1-4.
-std_msgs/Header header
-uint16[4] rpm
-"""
-ATTITUDE_MSG = """\
-# Attitude from the FC's quaternion in Betaflight's convention, degrees (yaw 0-360).
-std_msgs/Header header
-float64 roll_deg
-float64 pitch_deg
-float64 yaw_deg
-"""
-STREAM_HEALTH_MSG = """\
-# The FSP stream as wftool sees it; counters are totals of the run so far.
-std_msgs/Header header
-uint32 seq
-uint32 epoch
-bool e1
-bool clock_locked
-bool connected
-uint64 packets
-uint64 frames
-uint64 lost_frames
-uint64 lost_packets
-uint64 fc_drops
-uint64 rejected_chunks
-uint32 resets
-uint32 reconnects
-"""
-MSP_RC_MSG = """\
-# The RC channels an MSP_RC reply carries (µs-style, 1000-2000), in the FC's channel order.
-std_msgs/Header header
-uint16[] channels
-"""
-STREAM_EVENT_MSG = """\
-# What the verify loop saw, exactly: `wftool replay` feeds these back.
-uint8 CONNECTED = 0
-uint8 DISCONNECTED = 1
-uint8 BYTES = 2
-uint8 COMMAND = 3
-float64 t
-uint8 kind
-uint8[] data
-int16[] rc
-"""
-STREAM_EVENTS_MSG = """\
-# What the verify loop saw, exactly and in order: `wftool replay` feeds these back.
-# Event i happened at t[i] (OBC monotonic time, s) and takes the next size[i] bytes of
-# data (BYTES: a read, as read) or the next size[i] values of rc (COMMAND: RC sent).
-uint8 CONNECTED = 0
-uint8 DISCONNECTED = 1
-uint8 BYTES = 2
-uint8 COMMAND = 3
-float64[] t
-uint8[] kind
-uint32[] size
-uint8[] data
-int16[] rc
-"""
+WFTOOL_MSGS = Path(__file__).resolve().parents[1] / "recording" / "wftool_msgs"
+"""The `wftool_msgs` ROS 2 package (package.xml, CMakeLists.txt, msg/): the one source of our
+types' definitions, read here and built by ROS 2 (`colcon build`, or `wftool ros2 --build-msgs`)."""
+
+
+def wftool_msg(name: str) -> str:
+    """The definition of `wftool_msgs/msg/<name>`, as its `.msg` file holds it."""
+    return (WFTOOL_MSGS / "msg" / f"{name}.msg").read_text(encoding="utf-8")
+
+
+RC_CHANNELS_MSG = wftool_msg("RcChannels")
+MOTOR_RPM_MSG = wftool_msg("MotorRpm")
+ATTITUDE_MSG = wftool_msg("Attitude")
+STREAM_HEALTH_MSG = wftool_msg("StreamHealth")
+MSP_RC_MSG = wftool_msg("MspRc")
+STREAM_EVENT_MSG = wftool_msg("StreamEvent")
+STREAM_EVENTS_MSG = wftool_msg("StreamEvents")
 
 
 @dataclass(frozen=True)
