@@ -1,0 +1,178 @@
+"""Scaffolding for the ROS 2 tests: separate rclpy processes on the real middleware.
+
+    python -m tests.ros2.peers subscribe OUT SECONDS TOPIC=TYPE ...
+    python -m tests.ros2.peers publish BAG SECONDS NAMESPACE
+
+`subscribe` is the independent receiving side: typed subscriptions (rclpy's own type
+support decodes), reliable QoS, every message written to OUT as a JSON line
+{"topic", "received_ns", "message"} when it ends (after SECONDS, or IDLE_S after the last
+message); it prints "ready" once subscribed.
+`publish` plays a recording's messages as `ros2 bag play` would: the stored CDR bytes,
+as they are, on each topic (under NAMESPACE) with its type, once every topic is matched.
+The tests read both through `subscriber()` and `player()` below.
+"""
+
+from __future__ import annotations
+
+import array
+import dataclasses
+import importlib
+import json
+import math
+import os
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+REPO = Path(__file__).resolve().parents[2]
+QOS_DEPTH = 10_000
+IDLE_S = 3.0
+"""A subscriber stops this long after the last message."""
+
+
+def message_class(name: str) -> type:
+    """The rclpy class of a ROS 2 type name such as `sensor_msgs/msg/Imu`."""
+    package, kind, type_name = name.split("/")
+    return getattr(importlib.import_module(f"{package}.{kind}"), type_name)
+
+
+def plain(value: Any) -> Any:
+    """A message (rclpy's or rosbags') as plain data: dicts by field, lists, numbers; NaN as
+    the string "nan", so two decodings compare with ==."""
+    if hasattr(value, "get_fields_and_field_types"):  # rclpy
+        return {name: plain(getattr(value, name)) for name in value.get_fields_and_field_types()}
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):  # rosbags
+        names = [f.name for f in dataclasses.fields(value)]
+        fields = [n for n in names if not n.startswith("__") and not n.isupper()]  # constants
+        return {name: plain(getattr(value, name)) for name in fields}
+    if isinstance(value, (list, tuple, array.array)) or type(value).__name__ == "ndarray":
+        return [plain(v) for v in value]
+    if hasattr(value, "item"):  # a NumPy scalar
+        value = value.item()
+    if isinstance(value, bytes):
+        return list(value)
+    if isinstance(value, float) and math.isnan(value):
+        return "nan"
+    return value
+
+
+def _reliable():
+    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+    return QoSProfile(
+        depth=QOS_DEPTH, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE
+    )
+
+
+def _subscribe(out: Path, seconds: float, topics: list[str]) -> None:
+    import rclpy
+    from rclpy.experimental import EventsExecutor
+
+    rclpy.init()
+    node = rclpy.create_node("wftool_test_subscriber")
+    received: list[tuple[str, int, Any]] = []
+    for spec in topics:
+        topic, type_name = spec.split("=")
+
+        def callback(message: Any, topic: str = topic) -> None:
+            received.append((topic, time.time_ns(), message))
+
+        node.create_subscription(message_class(type_name), topic, callback, _reliable())
+    executor = EventsExecutor()
+    executor.add_node(node)
+    print("ready", flush=True)
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        executor.spin_once(timeout_sec=0.05)
+        if received and time.time_ns() - received[-1][1] > IDLE_S * 1e9:
+            break  # the stream is over
+    with out.open("w") as sink:
+        for topic, received_ns, message in received:
+            record = {"topic": topic, "received_ns": received_ns, "message": plain(message)}
+            sink.write(json.dumps(record) + "\n")
+    node.destroy_node()
+    rclpy.shutdown()
+
+
+def _publish(bag: Path, seconds: float, namespace: str) -> None:
+    import rclpy
+    from mcap.reader import make_reader
+    from rclpy.duration import Duration
+
+    rclpy.init()
+    node = rclpy.create_node("wftool_test_player")
+    publishers: dict[str, Any] = {}
+    messages: list[tuple[str, bytes]] = []
+    with bag.open("rb") as handle:
+        for schema, channel, message in make_reader(handle).iter_messages(log_time_order=True):
+            if channel.topic not in publishers:
+                kind = message_class(schema.name)
+                publishers[channel.topic] = node.create_publisher(
+                    kind, namespace + channel.topic, _reliable()
+                )
+            messages.append((channel.topic, message.data))
+    deadline = time.monotonic() + seconds
+    while any(p.get_subscription_count() == 0 for p in publishers.values()):
+        if time.monotonic() > deadline:
+            sys.exit("no subscriber matched every topic")
+        time.sleep(0.02)
+    for topic, data in messages:
+        publishers[topic].publish(data)  # bytes: published as they are
+    for publisher in publishers.values():  # reliable: stay until every message is delivered
+        if not publisher.wait_for_all_acked(Duration(seconds=max(deadline - time.monotonic(), 1))):
+            sys.exit(f"{publisher.topic_name}: not every message was acknowledged")
+    print(len(messages), flush=True)
+    node.destroy_node()
+    rclpy.shutdown()
+
+
+@contextmanager
+def subscriber(out: Path, seconds: float, topics: dict[str, str]) -> Iterator[subprocess.Popen]:
+    """A `subscribe` process for `topics` (name -> type), ready; waits for it at the end."""
+    command = [sys.executable, "-m", "tests.ros2.peers", "subscribe", str(out), str(seconds)]
+    command += [f"{topic}={kind}" for topic, kind in topics.items()]
+    process = subprocess.Popen(command, cwd=REPO, stdout=subprocess.PIPE, text=True)
+    try:
+        assert process.stdout is not None
+        line = process.stdout.readline()
+        assert line.strip() == "ready", f"the subscriber did not start: {line!r}"
+        yield process
+        process.wait(timeout=seconds + 30)
+        assert process.returncode == 0, f"the subscriber failed (exit {process.returncode})"
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+
+
+def received(out: Path) -> list[dict[str, Any]]:
+    with out.open() as lines:
+        return [json.loads(line) for line in lines]
+
+
+def play(bag: Path, namespace: str, seconds: float = 30.0) -> int:
+    """Play the MCAP file `bag` with a `publish` process; how many messages it published."""
+    result = subprocess.run(
+        [sys.executable, "-m", "tests.ros2.peers", "publish", str(bag), str(seconds), namespace],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=seconds + 30,
+        env=os.environ.copy(),
+    )
+    assert result.returncode == 0, result.stderr[-2000:]
+    return int(result.stdout.split()[-1])
+
+
+if __name__ == "__main__":
+    verb, *arguments = sys.argv[1:]
+    if verb == "subscribe":
+        _subscribe(Path(arguments[0]), float(arguments[1]), arguments[2:])
+    elif verb == "publish":
+        _publish(Path(arguments[0]), float(arguments[1]), arguments[2])
+    else:
+        sys.exit(f"unknown verb {verb}")
