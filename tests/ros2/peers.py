@@ -2,14 +2,22 @@
 
     python -m tests.ros2.peers subscribe OUT SECONDS TOPIC=TYPE ...
     python -m tests.ros2.peers publish BAG SECONDS NAMESPACE
+    python -m tests.ros2.peers command TOPIC PLAN SECONDS
+    python -m tests.ros2.peers node NAMESPACE SECONDS
 
 `subscribe` is the independent receiving side: typed subscriptions (rclpy's own type
 support decodes), reliable QoS, every message written to OUT as a JSON line
 {"topic", "received_ns", "message"} when it ends (after SECONDS, or IDLE_S after the last
-message); it prints "ready" once subscribed.
+message); it prints "ready" once subscribed, "matched" once every topic has a publisher.
 `publish` plays a recording's messages as `ros2 bag play` would: the stored CDR bytes,
 as they are, on each topic (under NAMESPACE) with its type, once every topic is matched.
-The tests read both through `subscriber()` and `player()` below.
+`command` is a ROS 2 program commanding the aircraft: it publishes `wftool_msgs/RcCommand`
+on TOPIC as the JSON PLAN says, a list of {"rc": [six values], "age_ns": how old its stamp
+is made (negative: ahead), "same_stamp": reuse the previous stamp, "after_s": wait first}.
+`node` is wftool's node taking commands (`Ros2Bridge`, accept_commands) for SECONDS, as the
+live loop would (it takes a command every millisecond); it prints its discovery scope, then
+its command counts as JSON.
+The tests run them through `subscriber()`, `play()`, `command()` and `node()` below.
 """
 
 from __future__ import annotations
@@ -23,7 +31,7 @@ import os
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -75,19 +83,26 @@ def _subscribe(out: Path, seconds: float, topics: list[str]) -> None:
     rclpy.init()
     node = rclpy.create_node("wftool_test_subscriber")
     received: list[tuple[str, int, Any]] = []
+    subscriptions = []
     for spec in topics:
         topic, type_name = spec.split("=")
 
         def callback(message: Any, topic: str = topic) -> None:
             received.append((topic, time.time_ns(), message))
 
-        node.create_subscription(message_class(type_name), topic, callback, _reliable())
+        subscriptions.append(
+            node.create_subscription(message_class(type_name), topic, callback, _reliable())
+        )
     executor = EventsExecutor()
     executor.add_node(node)
     print("ready", flush=True)
+    matched = False
     end = time.monotonic() + seconds
     while time.monotonic() < end:
         executor.spin_once(timeout_sec=0.05)
+        if not matched and all(s.get_publisher_count() for s in subscriptions):
+            matched = True
+            print("matched", flush=True)
         if received and time.time_ns() - received[-1][1] > IDLE_S * 1e9:
             break  # the stream is over
     with out.open("w") as sink:
@@ -130,9 +145,108 @@ def _publish(bag: Path, seconds: float, namespace: str) -> None:
     rclpy.shutdown()
 
 
+def _command(topic: str, plan: list[dict[str, Any]], seconds: float) -> None:
+    import rclpy
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from wftool_msgs.msg import RcCommand
+
+    rclpy.init()
+    node = rclpy.create_node("wftool_test_commander")
+    publisher = node.create_publisher(
+        RcCommand, topic, QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+    )
+    deadline = time.monotonic() + seconds
+    while publisher.get_subscription_count() == 0:
+        if time.monotonic() > deadline:
+            print("unmatched", flush=True)
+            return
+        time.sleep(0.02)
+    print("matched", flush=True)
+    stamp_ns = 0
+    for step in plan:
+        time.sleep(step.get("after_s", 0.0))
+        message = RcCommand()
+        message.roll, message.pitch, message.yaw, message.throttle, message.aux3, message.aux4 = (
+            step["rc"]
+        )
+        if not step.get("same_stamp"):
+            stamp_ns = node.get_clock().now().nanoseconds - step.get("age_ns", 0)
+        message.header.stamp.sec, message.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
+        publisher.publish(message)
+    time.sleep(0.5)
+    node.destroy_node()
+    rclpy.shutdown()
+
+
+def command(
+    topic: str,
+    plan: list[dict[str, Any]],
+    seconds: float = 20.0,
+    *,
+    wrapper: Sequence[str] = (),
+    env: dict[str, str] | None = None,
+) -> str:
+    """Run a `command` process with `plan` (under `wrapper`, e.g. `ip netns exec NAME`);
+    "matched" (it found the node and published) or "unmatched" (none within `seconds`)."""
+    command = [sys.executable, "-m", "tests.ros2.peers", "command", topic, json.dumps(plan)]
+    result = subprocess.run(
+        [*wrapper, *command, str(seconds)],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=seconds + 30,
+        env=env,
+    )
+    assert result.returncode == 0, result.stderr[-2000:]
+    return result.stdout.split()[0]
+
+
+def _node(namespace: str, seconds: float) -> None:
+    from wftool.ros2.node import Ros2Bridge, Ros2Options
+
+    bridge = Ros2Bridge(Ros2Options(namespace=namespace, accept_commands=True))
+    print(bridge.discovery, flush=True)
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        if bridge.take_command() is not None:
+            bridge.command_sent()
+        time.sleep(0.001)
+    print(json.dumps(dataclasses.asdict(bridge.command_counts)), flush=True)
+    bridge.close()
+
+
 @contextmanager
-def subscriber(out: Path, seconds: float, topics: dict[str, str]) -> Iterator[subprocess.Popen]:
-    """A `subscribe` process for `topics` (name -> type), ready; waits for it at the end."""
+def node(namespace: str, seconds: float, env: dict[str, str]) -> Iterator[tuple[Any, str]]:
+    """A `node` process with `env`, started: (the process, its discovery scope)."""
+    command = [sys.executable, "-m", "tests.ros2.peers", "node", namespace, str(seconds)]
+    process = subprocess.Popen(command, cwd=REPO, stdout=subprocess.PIPE, text=True, env=env)
+    try:
+        assert process.stdout is not None
+        yield process, process.stdout.readline().strip()
+    finally:
+        if process.poll() is None:
+            try:
+                process.wait(timeout=seconds + 30)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait()
+
+
+def node_counts(process: subprocess.Popen) -> dict[str, int]:
+    """The command counts a `node` process printed when it ended."""
+    assert process.stdout is not None
+    output = process.stdout.read()
+    assert process.wait(timeout=60) == 0
+    return json.loads(output.splitlines()[-1])
+
+
+@contextmanager
+def subscriber(
+    out: Path, seconds: float, topics: dict[str, str], *, matched: bool = False
+) -> Iterator[subprocess.Popen]:
+    """A `subscribe` process for `topics` (name -> type), ready (and with `matched`, with a
+    publisher on every topic: nothing they publish from then on is missed); waits for it at
+    the end."""
     command = [sys.executable, "-m", "tests.ros2.peers", "subscribe", str(out), str(seconds)]
     command += [f"{topic}={kind}" for topic, kind in topics.items()]
     process = subprocess.Popen(command, cwd=REPO, stdout=subprocess.PIPE, text=True)
@@ -140,6 +254,9 @@ def subscriber(out: Path, seconds: float, topics: dict[str, str]) -> Iterator[su
         assert process.stdout is not None
         line = process.stdout.readline()
         assert line.strip() == "ready", f"the subscriber did not start: {line!r}"
+        if matched:
+            line = process.stdout.readline()
+            assert line.strip() == "matched", f"the subscriber found no publisher: {line!r}"
         yield process
         process.wait(timeout=seconds + 30)
         assert process.returncode == 0, f"the subscriber failed (exit {process.returncode})"
@@ -174,5 +291,9 @@ if __name__ == "__main__":
         _subscribe(Path(arguments[0]), float(arguments[1]), arguments[2:])
     elif verb == "publish":
         _publish(Path(arguments[0]), float(arguments[1]), arguments[2])
+    elif verb == "command":
+        _command(arguments[0], json.loads(arguments[1]), float(arguments[2]))
+    elif verb == "node":
+        _node(arguments[0], float(arguments[1]))
     else:
         sys.exit(f"unknown verb {verb}")
