@@ -13,12 +13,13 @@ import pytest
 from mcap.reader import make_reader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
+from tests.recording.test_rosbag import assert_imu_matches, decoded_frames, flight, read_bag, record
 from tests.ros2 import peers
-from tests.verify.test_rosbag import assert_imu_matches, decoded_frames, flight, read_bag, record
 from wftool.fsp import SensorFrame
-from wftool.verify import ros2
-from wftool.verify.recording import Recorder
-from wftool.verify.ros2 import WFTOOL_MSGS, FrameEncoder
+from wftool.recording import ros2msg as ros2
+from wftool.recording.events import Event
+from wftool.recording.recorder import Recorder
+from wftool.recording.ros2msg import WFTOOL_MSGS, FrameEncoder
 
 pytestmark = pytest.mark.usefixtures("ros2_env")
 
@@ -142,11 +143,11 @@ def test_events_decode_to_the_events_written():
     from rclpy.serialization import deserialize_message
 
     events = [
-        ("connected", 1.0, b"", ()),
-        ("bytes", 1.5, b"\x00\x01\x02", ()),
-        ("command", 1.75, b"", (1100, 1500, 1500, 1000, 1000, 1000)),
-        ("bytes", 2.0, b"abcde", ()),
-        ("disconnected", 3.0, b"", ()),
+        Event("connected", 1.0),
+        Event("bytes", 1.5, b"\x00\x01\x02"),
+        Event("command", 1.75, rc=(1100, 1500, 1500, 1000, 1000, 1000)),
+        Event("bytes", 2.0, b"abcde"),
+        Event("disconnected", 3.0),
     ]
     batch = deserialize_message(
         ros2.encode_events(events), peers.message_class(ros2.STREAM_EVENTS.name)
@@ -163,7 +164,7 @@ def test_events_decode_to_the_events_written():
     assert bytes(batch.data) == b"\x00\x01\x02abcde"
     assert list(batch.rc) == [1100, 1500, 1500, 1000, 1000, 1000]
     one = deserialize_message(
-        ros2.encode_event("bytes", 4.5, b"xyz", ()), peers.message_class(ros2.STREAM_EVENT.name)
+        ros2.encode_event(Event("bytes", 4.5, b"xyz")), peers.message_class(ros2.STREAM_EVENT.name)
     )
     assert (one.t, one.kind, bytes(one.data), list(one.rc)) == (4.5, one.BYTES, b"xyz", [])
 

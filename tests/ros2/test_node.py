@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.recording.test_rosbag import READ_S, assert_imu_matches, decoded_frames, flight
 from tests.ros2 import peers
-from tests.verify.test_rosbag import READ_S, assert_imu_matches, decoded_frames, flight
 from wftool.errors import Ros2Error, UsageError
 from wftool.fsp import SensorFrame
 from wftool.ros2.commands import CommandCounts
@@ -22,8 +22,7 @@ from wftool.ros2.node import (
     Ros2Options,
     discovery_scope,
 )
-from wftool.verify.monitor import StreamMonitor
-from wftool.verify.ros2 import HealthSampler
+from wftool.verify.monitor import HealthSampler, StreamMonitor
 
 pytestmark = pytest.mark.usefixtures("ros2_env")
 

@@ -11,8 +11,8 @@ from pathlib import Path
 import pytest
 
 from wftool.errors import MissingExtraError, Ros2Error
+from wftool.recording.ros2msg import WFTOOL_MSGS
 from wftool.ros2 import typesupport
-from wftool.verify.ros2 import WFTOOL_MSGS
 
 EXPORT = """\
 set_target_properties(std_msgs::std_msgs__rosidl_generator_py PROPERTIES

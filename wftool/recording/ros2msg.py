@@ -87,7 +87,7 @@ float32[] cell_temperature
 string location
 string serial_number
 """
-WFTOOL_MSGS = Path(__file__).resolve().parents[1] / "recording" / "wftool_msgs"
+WFTOOL_MSGS = Path(__file__).resolve().with_name("wftool_msgs")
 """The `wftool_msgs` ROS 2 package (package.xml, CMakeLists.txt, msg/): the one source of our
 types' definitions, read here and built by ROS 2 (`colcon build`, or `wftool ros2 --build-msgs`)."""
 

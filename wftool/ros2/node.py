@@ -7,7 +7,7 @@
 Under the node's namespace: `fsp/imu`, `fsp/attitude`, `fsp/rc`, `fsp/rpm` one message per
 frame, `fsp/battery` at 10 Hz, `fsp/health` per health snapshot (10 Hz), and
 `fsp/command_status` at 10 Hz; with commands accepted it subscribes to `fsp/command`.
-The messages are the recordings' (`wftool.verify.ros2`), published as their CDR bytes, so
+The messages are the recordings' (`wftool.recording.ros2msg`), published as their CDR bytes, so
 the stamps are the frames' capture times on the ROS clock, as in a bag.
 """
 
@@ -25,9 +25,10 @@ from typing import Any
 from wftool.errors import Ros2Error, UsageError
 from wftool.extras import require
 from wftool.fsp import StatePacket
+from wftool.recording import ros2msg as msgs
+from wftool.recording.events import StreamHealth
+from wftool.recording.ros2msg import FrameEncoder, Throttle
 from wftool.ros2.commands import DEFAULT_MAX_AGE_NS, CommandCounts, CommandGate
-from wftool.verify import ros2 as msgs
-from wftool.verify.ros2 import FrameEncoder, StreamHealth, Throttle
 
 NODE_NAME = "wftool"
 COMMAND_TOPIC = "fsp/command"

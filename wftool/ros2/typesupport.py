@@ -28,7 +28,7 @@ from pathlib import Path
 from wftool.errors import MissingExtraError, Ros2Error
 from wftool.extras import install_hint
 from wftool.progress import Log, quiet
-from wftool.verify.ros2 import WFTOOL_MSGS
+from wftool.recording.ros2msg import WFTOOL_MSGS
 
 PACKAGE = "wftool_msgs"
 STAMP = Path("share") / PACKAGE / "wftool-sources.sha256"
