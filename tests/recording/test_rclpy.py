@@ -116,9 +116,9 @@ STAMP_NS = 1_700_000_123_456_789_012
 @pytest.mark.parametrize(
     "kind, encode, expected",
     [
-        (ros2.RC_CHANNELS, lambda: FrameEncoder.rc(_frame(), STAMP_NS),
+        (ros2.RC_CHANNELS, lambda: FrameEncoder(0).rc(_frame(), STAMP_NS),
          {"roll": 1100, "pitch": 1400, "yaw": 1600, "throttle": 1000, "aux3": 2000, "aux4": 990}),
-        (ros2.MOTOR_RPM, lambda: FrameEncoder.rpm(_frame(), STAMP_NS),
+        (ros2.MOTOR_RPM, lambda: FrameEncoder(0).rpm(_frame(), STAMP_NS),
          {"rpm": [0, 12000, 65535, 300]}),
         (ros2.ATTITUDE, lambda: ros2.attitude_message(STAMP_NS, -1.5, 2.25, 359.5),
          {"roll_deg": -1.5, "pitch_deg": 2.25, "yaw_deg": 359.5}),
