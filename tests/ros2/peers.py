@@ -208,8 +208,8 @@ def _node(namespace: str, seconds: float) -> None:
     print(bridge.discovery, flush=True)
     end = time.monotonic() + seconds
     while time.monotonic() < end:
-        if bridge.take_command() is not None:
-            bridge.command_sent()
+        if bridge.command() is not None:
+            bridge.sent()
         time.sleep(0.001)
     print(json.dumps(dataclasses.asdict(bridge.command_counts)), flush=True)
     bridge.close()

@@ -58,9 +58,11 @@ def stamp_of(message: dict) -> int:
     return message["header"]["stamp"]["sec"] * 1_000_000_000 + message["header"]["stamp"]["nanosec"]
 
 
+@pytest.mark.parametrize("bridge", [{"frame_id": "quad7/fc_body"}], indirect=True)
 def test_every_frame_reaches_a_separate_subscriber(bridge: Ros2Bridge, tmp_path: Path):
     """A flight fed as reads arrive: every frame on every per-frame topic, in order, stamped
-    with its capture time on the ROS clock; battery at 10 Hz; each health snapshot."""
+    with its capture time on the ROS clock, in the frame asked for; battery at 10 Hz; each
+    health snapshot."""
     namespace = bridge.options.namespace
     reads = flight(1500)
     monitor = StreamMonitor("socket://sim:5762")
@@ -94,7 +96,8 @@ def test_every_frame_reaches_a_separate_subscriber(bridge: Ros2Bridge, tmp_path:
             frame.rc
         )
     assert [tuple(m["rpm"]) for m in got["fsp/rpm"]] == [f.rpm for f in frames]
-    assert [m["header"]["frame_id"] for m in got["fsp/imu"]] == ["fc"] * len(frames)
+    for topic in STREAM_TYPES:
+        assert {m["header"]["frame_id"] for m in got[topic]} == {"quad7/fc_body"}, topic
     _assert_imu(got["fsp/imu"], frames)
     span_s = (stamps[-1] - stamps[0]) / 1e9
     assert len(got["fsp/battery"]) == pytest.approx(span_s * 10, abs=1.5)
@@ -126,9 +129,9 @@ def _poll(bridge: Ros2Bridge, seconds: float) -> list[tuple[int, ...]]:
     sent = []
     end = time.monotonic() + seconds
     while time.monotonic() < end:
-        rc = bridge.take_command()
+        rc = bridge.command()
         if rc is not None:
-            bridge.command_sent()
+            bridge.sent()
             sent.append(rc)
         time.sleep(0.001)
     return sent
@@ -197,7 +200,7 @@ def test_without_accept_commands_nothing_subscribes(bridge: Ros2Bridge):
     topic = f"{bridge.options.namespace}/fsp/command"
     assert topic not in bridge.topics
     assert peers.command(topic, [{"rc": RC}], seconds=2.0) == "unmatched"
-    assert bridge.take_command() is None
+    assert bridge.command() is None
 
 
 def test_topics_are_under_the_namespace(bridge: Ros2Bridge):
@@ -240,6 +243,8 @@ def test_discovery_stays_on_this_host_unless_widened(monkeypatch: pytest.MonkeyP
         ({"namespace": "drone"}, "a namespace starts with '/'"),
         ({"command_max_age_ns": 0}, "the command age limit must be positive"),
         ({"depth": 0}, "the queue depth must be at least 1"),
+        ({"frame_id": ""}, "a frame id is 1-255 printable characters"),
+        ({"frame_id": "fc\n"}, "a frame id is 1-255 printable characters"),
     ],
 )
 def test_bad_options_are_one_line(options, message):

@@ -1,8 +1,7 @@
 """The live ROS 2 node: the FSP stream published as it is decoded, commands taken from ROS 2.
 
     bridge = Ros2Bridge(Ros2Options(accept_commands=True))
-    bridge.packets(packets, health)      # per read, from the loop that reads the port
-    rc = bridge.take_command()           # the command to send now, if any
+    run_live(options, monitor, sinks=[bridge], commander=bridge)   # wftool.verify.live
 
 Under the node's namespace: `fsp/imu`, `fsp/attitude`, `fsp/rc`, `fsp/rpm` one message per
 frame, `fsp/battery` at 10 Hz, `fsp/health` per health snapshot (10 Hz), and
@@ -14,6 +13,7 @@ the stamps are the frames' capture times on the ROS clock, as in a bag.
 from __future__ import annotations
 
 import importlib
+import math
 import os
 import threading
 import time
@@ -62,8 +62,8 @@ class Ros2Options:
     def __post_init__(self) -> None:
         if not self.namespace.startswith("/"):
             raise UsageError(f"a namespace starts with '/': {self.namespace!r}")
-        if self.frame_id != msgs.FRAME_ID:
-            raise UsageError(f"only the frame id {msgs.FRAME_ID!r} is supported")
+        if not self.frame_id or not self.frame_id.isprintable() or len(self.frame_id) > 255:
+            raise UsageError(f"a frame id is 1-255 printable characters: {self.frame_id!r}")
         if self.command_max_age_ns <= 0:
             raise UsageError("the command age limit must be positive")
         if self.depth < 1:
@@ -146,7 +146,9 @@ class Ros2Bridge:
             rclpy.shutdown(context=context)
             raise Ros2Error(f"the ROS 2 node did not start: {exc}") from None
         self._clock = node.get_clock()
-        self._encoder = encoder or FrameEncoder(self.ros_now_ns() - time.monotonic_ns())
+        self._encoder = encoder or FrameEncoder(
+            self.ros_now_ns() - time.monotonic_ns(), options.frame_id
+        )
         stream = QoSProfile(
             depth=options.depth,
             history=HistoryPolicy.KEEP_LAST,
@@ -271,13 +273,20 @@ class Ros2Bridge:
         stamp = message.header.stamp
         self.gate.offer(rc, stamp.sec * 1_000_000_000 + stamp.nanosec, self.ros_now_ns())
 
-    def take_command(self) -> tuple[int, ...] | None:
+    @property
+    def due(self) -> float:
+        """When the live loop should ask for a command (a `live.Commander`): now if one is
+        waiting, else whenever it reads anyway."""
+        return 0.0 if self.gate is not None and self.gate.pending else math.inf
+
+    def command(self, t: float = 0.0) -> tuple[int, ...] | None:
         """The command to send now (fresh, in range, not sent before), if there is one."""
         if self.gate is None or not self.gate.pending:
             return None
         return self.gate.take(self.ros_now_ns())
 
-    def command_sent(self) -> None:
+    def sent(self, t: float = 0.0) -> None:
+        """The port took the command `command` gave."""
         if self.gate is not None:
             self.gate.sent()
 
