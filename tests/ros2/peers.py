@@ -7,8 +7,9 @@
 
 `subscribe` is the independent receiving side: typed subscriptions (rclpy's own type
 support decodes), reliable QoS, every message written to OUT as a JSON line
-{"topic", "received_ns", "message"} when it ends (after SECONDS, or IDLE_S after the last
-message); it prints "ready" once subscribed, "matched" once every topic has a publisher.
+{"topic", "received_ns", "message"} when it ends (SECONDS after every topic has a
+publisher, or IDLE_S after the last message); it prints "ready" once subscribed, "matched"
+once every topic has a publisher.
 `publish` plays a recording's messages as `ros2 bag play` would: the stored CDR bytes,
 as they are, on each topic (under NAMESPACE) with its type, once every topic is matched.
 `command` is a ROS 2 program commanding the aircraft: it publishes `wftool_msgs/RcCommand`
@@ -102,6 +103,7 @@ def _subscribe(out: Path, seconds: float, topics: list[str]) -> None:
         executor.spin_once(timeout_sec=0.05)
         if not matched and all(s.get_publisher_count() for s in subscriptions):
             matched = True
+            end = time.monotonic() + seconds  # SECONDS of a stream, from its first publisher
             print("matched", flush=True)
         if received and time.time_ns() - received[-1][1] > IDLE_S * 1e9:
             break  # the stream is over

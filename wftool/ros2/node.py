@@ -145,6 +145,8 @@ class Ros2Bridge:
         except Exception as exc:  # rclpy's own errors: a bad namespace, no middleware
             rclpy.shutdown(context=context)
             raise Ros2Error(f"the ROS 2 node did not start: {exc}") from None
+        self.name = node.get_fully_qualified_name()
+        self.domain_id = context.get_domain_id()
         self._clock = node.get_clock()
         self._encoder = encoder or FrameEncoder(
             self.ros_now_ns() - time.monotonic_ns(), options.frame_id

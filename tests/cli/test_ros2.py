@@ -1,0 +1,53 @@
+"""`wftool ros2` and `wftool sitl --ros2` at the command line: what they refuse, in one line,
+before anything starts; and what the node says when it does."""
+
+from __future__ import annotations
+
+import socket
+import sys
+
+import pytest
+
+from tests.conftest import run_cli
+from wftool.errors import EXIT_USAGE
+
+
+def test_without_the_extra_it_names_it(capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "rclpy", None)  # as if the ros2 extra were missing
+    code, _, err = run_cli(capsys, "ros2", "--port", "socket://127.0.0.1:9")
+    assert code == EXIT_USAGE
+    assert err.strip() == "error: the ROS 2 node needs ROS 2 (rclpy): pip install 'wftool[ros2]'"
+
+
+def test_a_port_is_needed(capsys):
+    code, _, err = run_cli(capsys, "ros2")
+    assert code == EXIT_USAGE
+    assert "which FSP port? --port URL" in err
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (("--accept-commands",), "--accept-commands is the ROS 2 node's: add --ros2"),
+        (("--ros2", "--accept-commands", "--uplink"), "--uplink and --accept-commands both"),
+    ],
+)
+def test_sitl_refuses_commands_it_cannot_take(capsys, args, message):
+    code, _, err = run_cli(capsys, "sitl", "--binary", sys.executable, *args)
+    assert code == EXIT_USAGE
+    assert message in err
+
+
+@pytest.mark.usefixtures("ros2_env")
+def test_a_port_that_cannot_open_is_one_line_and_the_node_says_who_may_command(capsys):
+    with socket.socket() as probe:  # a port nobody listens on
+        probe.bind(("127.0.0.1", 0))
+        url = f"socket://127.0.0.1:{probe.getsockname()[1]}"
+    code, _, err = run_cli(capsys, "ros2", "--port", url, "--namespace", "/cli_test")
+    assert code == EXIT_USAGE
+    lines = err.splitlines()
+    assert lines[-1].startswith("error: ") and url in lines[-1]
+    text = " ".join(err.split())  # rich wraps long lines
+    assert "discovery: this host only" in text
+    assert "commands: not taken (--accept-commands takes them on fsp/command)" in text
+    assert "/cli_test/fsp/imu" in text
