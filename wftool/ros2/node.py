@@ -40,6 +40,7 @@ DISCOVERY_RANGE = "ROS_AUTOMATIC_DISCOVERY_RANGE"
 FAST_DDS = "rmw_fastrtps_cpp"
 FAST_DDS_PROFILES = ("FASTDDS_DEFAULT_PROFILES_FILE", "FASTRTPS_DEFAULT_PROFILES_FILE")
 THIS_HOST_PROFILE = Path(__file__).with_name("this_host.xml")
+PUBLICATION_MODE = "RMW_FASTRTPS_PUBLICATION_MODE"
 SPIN_TIMEOUT_S = 0.1
 """How long the command thread waits for a command before it looks whether to stop."""
 
@@ -127,6 +128,9 @@ class Ros2Bridge:
 
         self.options = options
         self.discovery = discovery_scope()
+        # Fast DDS sends from the publishing thread instead of handing each message to a
+        # thread of its own: at 1 kHz half the CPU and a fraction of the P99 latency.
+        os.environ.setdefault(PUBLICATION_MODE, "SYNCHRONOUS")
         self._context = context = Context()
         rclpy.init(
             args=[],
