@@ -1,13 +1,8 @@
-"""The ROS 2 node's cost and latency on the virtual FC, beside `FspReader` on the same stream.
+"""The ROS 2 node's cost and latency on the virtual FC, beside `FspReader` on the same stream
+(docs/bench.md).
 
-One virtual FC, read twice for the same time, one reader after the other, each in a process of
-its own: `FspReader` (the library as an OBC program uses it), then the node (`Ros2Bridge` as
-the sink of the live loop, what `wftool ros2` runs) with a separate subscriber process taking
-fsp/imu. Per reader: its process's CPU time over the run (every thread: for the node the
-middleware's too) per kHz of frames, and the latency from each frame's stamp (its capture
-time on the OBC clock) to the frame in hand: when the read that completed it returned, for
-`FspReader`; when the subscriber's callback got it, for the node; and, per frame, the hop the
-node adds (subscriber's callback minus the node's read).
+    result = run_ros2_bench(sitl_binary, seconds=20.0)
+    result.node.cpu_percent_per_khz, result.node.latency, result.hop
 """
 
 from __future__ import annotations

@@ -1,13 +1,8 @@
-"""The live ROS 2 node: the FSP stream published as it is decoded, commands taken from ROS 2.
+"""The live ROS 2 node: the FSP stream published as it is decoded, commands taken from ROS 2
+(topics, QoS, who may reach it: docs/ros2.md).
 
     bridge = Ros2Bridge(Ros2Options(accept_commands=True))
-    run_live(options, monitor, sinks=[bridge], commander=bridge)   # wftool.verify.live
-
-Under the node's namespace: `fsp/imu`, `fsp/attitude`, `fsp/rc`, `fsp/rpm` one message per
-frame, `fsp/battery` at 10 Hz, `fsp/health` per health snapshot (10 Hz), and
-`fsp/command_status` at 10 Hz; with commands accepted it subscribes to `fsp/command`.
-The messages are the recordings' (`wftool.recording.ros2msg`), published as their CDR bytes, so
-the stamps are the frames' capture times on the ROS clock, as in a bag.
+    VerifySession(url, sinks=[bridge], commander=bridge).run()     # wftool.verify.session
 """
 
 from __future__ import annotations
