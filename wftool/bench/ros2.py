@@ -18,6 +18,7 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
+from wftool.bench.latency import Quantiles
 from wftool.fsp import FspReader, StatePacket
 from wftool.fsp.schedule import DEFAULT_RATE_HZ
 from wftool.recording.events import Event, StreamHealth
@@ -31,23 +32,6 @@ READ_TIMEOUT_S = 0.05
 
 
 @dataclass(frozen=True)
-class Quantiles:
-    p50_ms: float
-    p99_ms: float
-    max_ms: float
-
-    @classmethod
-    def of(cls, values_ns: Sequence[int]) -> Quantiles | None:
-        if not values_ns:
-            return None
-        ordered = sorted(values_ns)
-        last = len(ordered) - 1
-        return cls(
-            ordered[round(0.5 * last)] / 1e6, ordered[round(0.99 * last)] / 1e6, ordered[-1] / 1e6
-        )
-
-
-@dataclass(frozen=True)
 class ReaderFigures:
     name: str
     frames: int
@@ -56,7 +40,7 @@ class ReaderFigures:
     cpu_s: float
     """The reader's process: user + system time over the measured time."""
     latency: Quantiles | None
-    """Stamp to frame in hand."""
+    """Stamp to frame in hand, s."""
 
     @property
     def rate_hz(self) -> float:
@@ -83,7 +67,7 @@ class Ros2Bench:
     received_of_published: int
     """Of those, the ones the subscriber received."""
     hop: Quantiles | None
-    """Per frame: the subscriber's callback minus the node's read."""
+    """Per frame: the subscriber's callback minus the node's read, s."""
     subscriber_cpu_percent: float
 
 
@@ -250,7 +234,7 @@ def _figures(
 ) -> Ros2Bench:
     frames, elapsed, cpu, latencies = direct
     direct_figures = ReaderFigures(
-        "FspReader", frames, elapsed, cpu, Quantiles.of(array("q", latencies))
+        "FspReader", frames, elapsed, cpu, Quantiles.of([v / 1e9 for v in array("q", latencies)])
     )
     sub_elapsed, sub_cpu, stamps_raw, received_raw = received
     node_elapsed, node_cpu, node_stamps_raw, reads_raw = published
@@ -261,9 +245,9 @@ def _figures(
         len(read_at),
         node_elapsed,
         node_cpu,
-        Quantiles.of([r - s for s, r in zip(stamps, receive)]),
+        Quantiles.of([(r - s) / 1e9 for s, r in zip(stamps, receive)]),
     )
-    hops = [r - read_at[s] for s, r in zip(stamps, receive) if s in read_at]
+    hops = [(r - read_at[s]) / 1e9 for s, r in zip(stamps, receive) if s in read_at]
     # The node measured from the subscriber's start, told a moment later, until after its end.
     window = [s for s in read_at if stamps and stamps[0] <= s <= stamps[-1]]
     taken = set(stamps)

@@ -21,7 +21,7 @@ from wftool.errors import Ros2Error, UsageError
 from wftool.extras import require
 from wftool.fsp import StatePacket
 from wftool.recording import ros2msg as msgs
-from wftool.recording.events import StreamHealth
+from wftool.recording.events import Event, StreamHealth
 from wftool.recording.ros2msg import FrameEncoder, Throttle
 from wftool.ros2.commands import DEFAULT_MAX_AGE_NS, CommandCounts, CommandGate
 
@@ -167,10 +167,8 @@ class Ros2Bridge:
             return node.create_publisher(_message_class(kind.name), _relative(topic), qos)
 
         self._per_frame = [
-            (publisher(msgs.IMU_TOPIC, msgs.IMU, stream).publish, encoder.imu),
-            (publisher(msgs.ATTITUDE_TOPIC, msgs.ATTITUDE, stream).publish, encoder.attitude),
-            (publisher(msgs.RC_TOPIC, msgs.RC_CHANNELS, stream).publish, encoder.rc),
-            (publisher(msgs.RPM_TOPIC, msgs.MOTOR_RPM, stream).publish, encoder.rpm),
+            (publisher(topic, kind, stream).publish, getattr(encoder, method))
+            for topic, kind, method in msgs.LIVE_PER_FRAME
         ]
         self._battery = publisher(msgs.BATTERY_TOPIC, msgs.BATTERY_STATE, latest).publish
         self._health = publisher(msgs.HEALTH_TOPIC, msgs.STREAM_HEALTH, latest).publish
@@ -224,7 +222,7 @@ class Ros2Bridge:
 
     # The live loop's sink.
 
-    def event(self, event: object) -> None:
+    def event(self, event: Event) -> None:
         """Events (reads, connects) are the recording's business; the node publishes frames."""
 
     def packets(self, packets: Sequence[StatePacket], health: StreamHealth | None = None) -> None:
