@@ -195,6 +195,8 @@ def _subscribe(seconds: float, conn: Connection) -> None:
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import Imu
 
+    from wftool.ros2.node import DEFAULT_DEPTH
+
     rclpy.init()
     node = rclpy.create_node("wftool_bench_subscriber")
     stamps, received = array("q"), array("q")
@@ -207,7 +209,7 @@ def _subscribe(seconds: float, conn: Connection) -> None:
             stamps.append(stamp.sec * 1_000_000_000 + stamp.nanosec)
             received.append(now)
 
-    qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+    qos = QoSProfile(depth=DEFAULT_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
     subscription = node.create_subscription(Imu, IMU_TOPIC, take, qos)
     executor = EventsExecutor()
     executor.add_node(node)

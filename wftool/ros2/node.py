@@ -28,9 +28,9 @@ from wftool.ros2.commands import DEFAULT_MAX_AGE_NS, CommandCounts, CommandGate
 NODE_NAME = "wftool"
 COMMAND_TOPIC = "fsp/command"
 COMMAND_STATUS_TOPIC = "fsp/command_status"
-DEFAULT_DEPTH = 100
-"""Messages a publisher keeps per topic for a reliable subscriber that falls behind (100 ms
-at 1 kHz); beyond that the oldest are dropped, and the loop never waits."""
+DEFAULT_DEPTH = 1000
+"""Messages a publisher keeps per topic for a reliable subscriber that falls behind (1 s at
+1 kHz; ~0.4 MB a topic); beyond that the oldest are dropped, and the loop never waits."""
 DISCOVERY_RANGE = "ROS_AUTOMATIC_DISCOVERY_RANGE"
 FAST_DDS = "rmw_fastrtps_cpp"
 FAST_DDS_PROFILES = ("FASTDDS_DEFAULT_PROFILES_FILE", "FASTRTPS_DEFAULT_PROFILES_FILE")
