@@ -40,18 +40,19 @@ def test_sitl_refuses_commands_it_cannot_take(capsys, args, message):
 
 
 @pytest.mark.usefixtures("ros2_env")
-def test_a_port_that_cannot_open_is_one_line_and_the_node_says_who_may_command(capsys):
+def test_a_port_that_cannot_open_is_one_line_and_the_node_says_who_may_command(capsys, tmp_path):
     with socket.socket() as probe:  # a port nobody listens on
         probe.bind(("127.0.0.1", 0))
         url = f"socket://127.0.0.1:{probe.getsockname()[1]}"
-    code, _, err = run_cli(capsys, "ros2", "--port", url, "--namespace", "/cli_test")
+    namespace = peers.namespace_of(tmp_path)
+    code, _, err = run_cli(capsys, "ros2", "--port", url, "--namespace", namespace)
     assert code == EXIT_USAGE
     lines = err.splitlines()
     assert lines[-1].startswith("error: ") and url in lines[-1]
     text = " ".join(err.split())  # rich wraps long lines
     assert "discovery: this host only" in text
     assert "commands: not taken (--accept-commands takes them on fsp/command)" in text
-    assert "/cli_test/fsp/imu" in text
+    assert f"{namespace}/fsp/imu" in text
 
 
 @pytest.mark.slow
@@ -60,12 +61,13 @@ def test_sitl_ros2_publishes_the_virtual_fcs_stream_while_it_verifies(
     capsys, sitl_binary, tmp_path
 ):
     out = tmp_path / "received.jsonl"
-    topics = {"/sitl_cli/fsp/imu": "sensor_msgs/msg/Imu"}
+    namespace = peers.namespace_of(tmp_path)
+    topics = {f"{namespace}/fsp/imu": "sensor_msgs/msg/Imu"}
     with peers.subscriber(out, 60, topics):
         code, _, err = run_cli(
             capsys, "sitl", "--binary", str(sitl_binary), "--port-base", "0", "--ros2",
-            "--namespace", "/sitl_cli", "--verify", "5",
+            "--namespace", namespace, "--verify", "5",
         )  # fmt: skip
     assert code == 0, err
-    assert "publishing /sitl_cli/fsp/attitude" in " ".join(err.split())
+    assert f"publishing {namespace}/fsp/attitude" in " ".join(err.split())
     assert len(peers.received(out)) > 1000  # of 5 s at 1 kHz, less discovery and matching

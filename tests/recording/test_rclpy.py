@@ -173,7 +173,7 @@ def test_a_played_recording_arrives_over_the_middleware_as_recorded(bag, tmp_pat
     """The recording played as `ros2 bag play` would (its CDR bytes, as stored) reaches a
     separate subscriber process, whose typed subscriptions decode what rosbags decodes."""
     path, _ = bag
-    namespace = f"/play{tmp_path.name[-8:]}".replace("-", "_")
+    namespace = peers.namespace_of(tmp_path)
     topics = {f"{namespace}{topic}": kind for topic, kind in _topic_types(path).items()}
     out = tmp_path / "received.jsonl"
     with peers.subscriber(out, 60, topics):

@@ -43,6 +43,12 @@ IDLE_S = 3.0
 """A subscriber stops this long after the last message."""
 
 
+def namespace_of(tmp_path: Path) -> str:
+    """A ROS 2 namespace of the test's own: no other test, of this session or another one
+    running on the machine, is heard."""
+    return f"/t{os.getpid()}_" + "".join(c for c in tmp_path.name if c.isalnum())
+
+
 def message_class(name: str) -> type:
     """The rclpy class of a ROS 2 type name such as `sensor_msgs/msg/Imu`."""
     package, kind, type_name = name.split("/")

@@ -88,7 +88,7 @@ def test_a_commander_on_another_host_is_heard_only_when_widened(
 ):
     """By default the node neither finds nor hears it: nothing reaches the gate. Widened, the
     same program is heard (so the link works, and the first case means something)."""
-    namespace = "/n" + "".join(c for c in tmp_path.name if c.isalnum())
+    namespace = peers.namespace_of(tmp_path)
     env = _environment(ROS_AUTOMATIC_DISCOVERY_RANGE=node_range)
     attacker = _environment(
         ROS_AUTOMATIC_DISCOVERY_RANGE="SUBNET", ROS_STATIC_PEERS=other_host.our_address

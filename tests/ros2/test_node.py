@@ -39,15 +39,10 @@ STREAM_TYPES = {
 }
 
 
-def namespace_of(tmp_path: Path) -> str:
-    """A namespace of the test's own: other tests' nodes are never heard."""
-    return "/t" + "".join(c for c in tmp_path.name if c.isalnum())
-
-
 @pytest.fixture
 def bridge(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Ros2Bridge]:
     options = getattr(request, "param", {})
-    bridge = Ros2Bridge(Ros2Options(namespace=namespace_of(tmp_path), **options))
+    bridge = Ros2Bridge(Ros2Options(namespace=peers.namespace_of(tmp_path), **options))
     try:
         yield bridge
     finally:

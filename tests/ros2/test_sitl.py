@@ -33,7 +33,7 @@ def fsp_fc(sitl_binary: Path, tmp_path: Path) -> Iterator[VirtualFcSession]:
 def node(fsp_fc: VirtualFcSession, tmp_path: Path) -> Iterator[str]:
     """`wftool ros2` on the virtual FC's FSP port, taking commands: its namespace."""
     assert fsp_fc.expected_rate_hz == pytest.approx(1e9 / PERIOD_NS)
-    namespace = "/s" + "".join(c for c in tmp_path.name if c.isalnum())
+    namespace = peers.namespace_of(tmp_path)
     log = (tmp_path / "node.log").open("w")
     process = subprocess.Popen(
         [sys.executable, "-m", "wftool", "ros2", "--port", fsp_fc.fsp_url, "--namespace",
