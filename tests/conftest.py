@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import contextlib
 import os
+import random
+import shutil
 import subprocess
 from collections.abc import Iterator
 from pathlib import Path
@@ -28,6 +30,7 @@ from wftool.fc.cli_session import CliSession
 from wftool.fc.msp import MspClient
 from wftool.firmware import BuildOptions, BuildResult, build
 from wftool.firmware.project import Project
+from wftool.ros2 import typesupport
 from wftool.sitl.process import VirtualFC
 
 REPO = Path(__file__).resolve().parent.parent
@@ -160,3 +163,24 @@ def _git(cwd: Path, *args: str) -> str:
     return subprocess.run(
         ["git", *args], cwd=cwd, check=True, capture_output=True, text=True
     ).stdout.strip()
+
+
+@pytest.fixture(scope="session")
+def ros2_env() -> None:
+    """ROS 2 from the `ros2` extra's wheels (rclpy on Fast DDS), with wftool_msgs' type support
+    built into this environment (once; cached while the .msg files are unchanged).
+
+    The session gets a DDS domain of its own and discovery on this host, so that other test
+    sessions on the machine are not heard; subprocesses inherit both."""
+    try:
+        import rclpy  # noqa: F401
+    except ImportError as exc:
+        pytest.skip(
+            f"ROS 2 wheels not installed ({exc}); scripts/setup installs the ros2 extra where "
+            "its wheels exist (CPython 3.11 on Linux)"
+        )
+    if shutil.which("cmake") is None:
+        pytest.skip("cmake not installed (scripts/setup installs it when run as root)")
+    typesupport.build()
+    os.environ["ROS_DOMAIN_ID"] = str(random.SystemRandom().randrange(1, 100))
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"

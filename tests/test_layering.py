@@ -23,7 +23,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("fsp",),  # the OBC library
     ("fc", "firmware"),
     ("flash", "recording", "sitl"),
-    ("verify", "ros2"),  # ros2: the live ROS 2 node, to come
+    ("verify", "ros2"),  # ros2: the live ROS 2 node
     ("analysis", "bench"),
     ("doctor", "paper"),
     ("cli",),

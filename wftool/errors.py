@@ -94,6 +94,11 @@ class PortInUseError(SitlError):
     exit_code = EXIT_USAGE
 
 
+class Ros2Error(WftoolError):
+    """ROS 2 could not do its part: the wftool_msgs type support would not build, or the
+    middleware would not start."""
+
+
 class Terminated(BaseException):
     """SIGTERM or SIGHUP arrived: unwind (closing ports, stopping the virtual FC) and exit
     128 + the signal number, as a shell reports a process the signal ended."""

@@ -19,6 +19,7 @@ EXTRAS: dict[str, dict[str, str]] = {
     },
     "mavlink": {"pymavlink": "pymavlink"},
     "foxglove": {"foxglove": "the Foxglove SDK"},
+    "ros2": {"rclpy": "ROS 2 (rclpy)"},
 }
 """Per extra, its modules (import name -> the name a user knows). Keep in step with
 pyproject.toml's [project.optional-dependencies]."""

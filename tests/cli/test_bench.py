@@ -49,3 +49,18 @@ def test_bench_record_prints_both_formats_their_read_back_and_both_writers_stall
         and chunks >= 1
         and writers["in-process McapFile"][:2] == writers["writer process"][:2]
     )  # the same messages, the same chunks
+
+
+@pytest.mark.slow
+@pytest.mark.usefixtures("ros2_env")
+def test_bench_ros2_prints_both_readers_the_hop_and_the_subscriber(
+    capsys: pytest.CaptureFixture[str], sitl_binary
+) -> None:
+    binary = str(sitl_binary)
+    code, out, err = run_cli(capsys, "bench", "ros2", "--seconds", "3", "--binary", binary)
+    assert (code, err) == (0, "")
+    assert "bench ros2: 3 s per reader at fsp_rate_hz 1100" in out
+    rows = [line for line in out.splitlines() if "FspReader" in line or "subscriber  " in line]
+    assert len(rows) == 2, out
+    assert "the node's hop (its read → the subscriber's callback), per frame: P50" in out
+    assert " published while it measured (0 lost)" in out

@@ -130,6 +130,32 @@ def test_battery_rc_rpm_attitude(store):
     )
 
 
+@settings(max_examples=60)
+@given(frame_id=st.text(st.characters(min_codepoint=32, max_codepoint=126), max_size=40))
+def test_any_frame_id_moves_what_follows_the_header_by_the_rules(store, frame_id):
+    """Every message with any frame id: the header's string shifts the rest of the message,
+    which CDR realigns (an Imu's doubles to 8, StreamHealth's uint64 after three bools)."""
+    frame = _frame()
+    encoder = FrameEncoder(0, frame_id)
+    health = StreamHealth(1.5, 7, 2, True, False, True, 10, 20, 1, 2, 3, 4, 5, 6)
+    for message, name in (
+        (encoder.imu(frame, 5), "sensor_msgs/msg/Imu"),
+        (encoder.battery(frame, 5), "sensor_msgs/msg/BatteryState"),
+        (encoder.rc(frame, 5), "wftool_msgs/msg/RcChannels"),
+        (encoder.rpm(frame, 5), "wftool_msgs/msg/MotorRpm"),
+        (encoder.attitude(frame, 5), "wftool_msgs/msg/Attitude"),
+        (encoder.health(health), "wftool_msgs/msg/StreamHealth"),
+    ):
+        decoded = store.deserialize_cdr(message, name)
+        assert decoded.header.frame_id == frame_id, name
+        reference = store.serialize_cdr(decoded, name)  # rosbags' own bytes of the same values
+        assert message == reference, name
+    rc = store.deserialize_cdr(encoder.rc(frame, 5), "wftool_msgs/msg/RcChannels")
+    assert (rc.roll, rc.pitch, rc.yaw, rc.throttle, rc.aux3, rc.aux4) == frame.rc
+    decoded = store.deserialize_cdr(encoder.health(health), "wftool_msgs/msg/StreamHealth")
+    assert (decoded.lost_frames, decoded.reconnects) == (1, 6)
+
+
 def test_health(store):
     health = StreamHealth(
         t=12.5, seq=2**24 - 1, epoch=3, e1=True, clock_locked=False, connected=True,

@@ -25,6 +25,7 @@ from websockets.sync.client import ClientConnection, connect
 from tests.recording.test_rosbag import assert_imu_matches, decoded_frames, flight, stamp_of
 from wftool.errors import UsageError
 from wftool.recording.events import StreamHealth
+from wftool.recording.ros2msg import WFTOOL_MSGS
 from wftool.verify.foxglove import TOPICS, FoxgloveLive
 
 SUBPROTOCOL = "foxglove.sdk.v1"
@@ -100,6 +101,11 @@ def test_viewer_receives_what_was_published():
     with FoxgloveLive(port=0) as live:
         assert live.url.startswith("ws://127.0.0.1:")  # localhost unless told otherwise
         viewer = Viewer(live.url)
+        for channel in viewer.channels.values():  # served as the wftool_msgs package has them
+            package, _, name = channel["schemaName"].split("/")
+            if package == "wftool_msgs":
+                definition = channel["schema"].split("=" * 80 + "\nMSG: ")[0]
+                assert definition == (WFTOOL_MSGS / "msg" / f"{name}.msg").read_text(), name
         wait_subscribed(live, set(TOPICS))
         for index, frame in enumerate(frames):
             live.publish(frame, health[index * len(health) // len(frames)])

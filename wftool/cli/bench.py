@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -20,6 +21,18 @@ from wftool.verify.monitor import IntervalSummary
 out = Console(highlight=False, width=None if sys.stdout.isatty() else 200)
 ROS2_BYTES_PER_FRAME_GOAL = 94.0
 """The size goal of a ROS 2 recording: what the JSON format measured when it was set."""
+
+
+def sitl_options(command: Callable[..., None]) -> Callable[..., None]:
+    """--binary and --project: the virtual FC a benchmark runs (built if not given)."""
+    command = click.option(
+        "--project", "project_dir", type=click.Path(file_okay=False, path_type=Path)
+    )(command)
+    return click.option(
+        "--binary",
+        type=click.Path(exists=True, dir_okay=False, path_type=Path),
+        help="SITL program [build the patched one].",
+    )(command)
 
 
 @click.group("bench")
@@ -136,12 +149,7 @@ def bench_decode(minutes: float, chunk: int, tunnel: bool, repeat: int) -> None:
     help="fsp_rate_hz values to try, comma-separated; the first is the default rate.",
 )
 @click.option("--seconds", default=60.0, show_default=True, help="Streaming time per rate.")
-@click.option(
-    "--binary",
-    type=click.Path(exists=True, dir_okay=False, path_type=Path),
-    help="SITL program [build the patched one].",
-)
-@click.option("--project", "project_dir", type=click.Path(file_okay=False, path_type=Path))
+@sitl_options
 def bench_stream(rates: str, seconds: float, binary: Path | None, project_dir: Path | None) -> None:
     """On the virtual FC: the highest fsp_rate_hz that streams without loss, verify's CPU
     share at the default rate, and the decode latency (read to frames)."""
@@ -179,6 +187,51 @@ def bench_stream(rates: str, seconds: float, binary: Path | None, project_dir: P
     out.print(f"decode latency, read to frames: P50 {p50:.3f} ms, P99 {p99:.3f} ms")
 
 
+@bench_group.command("ros2")
+@click.option("--seconds", default=20.0, show_default=True, help="Streaming time per reader.")
+@rate_option
+@sitl_options
+def bench_ros2(seconds: float, rate_hz: int, binary: Path | None, project_dir: Path | None) -> None:
+    """On the virtual FC: the ROS 2 node's CPU per kHz of frames and a subscriber's latency,
+    beside FspReader reading the same stream (extra ros2)."""
+    from wftool.bench.ros2 import run_ros2_bench
+    from wftool.cli.sitl import build_sitl
+    from wftool.extras import require
+
+    require("ros2", what="bench ros2")
+    result = run_ros2_bench(binary or build_sitl(project_dir), seconds, rate_hz)
+    out.print(
+        f"bench ros2: {result.seconds:g} s per reader at fsp_rate_hz {result.rate_hz} on the "
+        "virtual FC; the node publishes fsp/imu, attitude, rc, rpm per frame, a subscriber "
+        "process takes fsp/imu (reliable, events executor)"
+    )
+    table = Table(box=None, pad_edge=False)
+    for column in ("reader", "frames", "Hz", "CPU % of a core", "CPU % per kHz",
+                   "stamp → in hand P50 ms", "P99 ms", "max ms"):  # fmt: skip
+        table.add_column(column, justify="right")
+    for reader in (result.direct, result.node):
+        latency = reader.latency
+        table.add_row(
+            reader.name, f"{reader.frames:,}", f"{reader.rate_hz:.1f}",
+            f"{reader.cpu_percent:.1f}", f"{reader.cpu_percent_per_khz:.1f}",
+            *(("–",) * 3 if latency is None else
+              tuple(f"{1e3 * v:.2f}" for v in (latency.p50_s, latency.p99_s, latency.max_s))),
+        )  # fmt: skip
+    out.print(table)
+    hop = result.hop
+    if hop is not None:
+        out.print(
+            f"the node's hop (its read → the subscriber's callback), per frame: P50 "
+            f"{1e3 * hop.p50_s:.2f} ms, P99 {1e3 * hop.p99_s:.2f} ms, max {1e3 * hop.max_s:.2f} ms"
+        )
+    lost = result.published - result.received_of_published
+    out.print(
+        f"subscriber: {result.received_of_published:,} of the {result.published:,} frames "
+        f"published while it measured ({lost} lost); its own CPU "
+        f"{result.subscriber_cpu_percent:.1f} % of a core"
+    )
+
+
 @bench_group.command("latency")
 @click.option("--seconds", default=60.0, show_default=True, help="Streaming time.")
 @rate_option
@@ -195,12 +248,7 @@ def bench_stream(rates: str, seconds: float, binary: Path | None, project_dir: P
     show_default=True,
     help="Commands per second sent to the FC.",
 )
-@click.option(
-    "--binary",
-    type=click.Path(exists=True, dir_okay=False, path_type=Path),
-    help="SITL program [build the patched one].",
-)
-@click.option("--project", "project_dir", type=click.Path(file_okay=False, path_type=Path))
+@sitl_options
 def bench_latency(
     seconds: float, rate_hz: int, time_reply: bool, command_rate: float, binary: Path | None,
     project_dir: Path | None,

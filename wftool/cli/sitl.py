@@ -8,6 +8,7 @@ from typing import Any
 
 import click
 
+from wftool.cli.ros2 import node_from, node_options
 from wftool.cli.verify import criteria_options, err, run_options, session_from, verify_stream
 from wftool.errors import UsageError
 from wftool.fsp import DEFAULT_BAUDRATE
@@ -74,19 +75,31 @@ rate_option = click.option(
 )
 @run_options
 @criteria_options
+@click.option(
+    "--ros2",
+    "ros2",
+    is_flag=True,
+    help="Publish the stream as a ROS 2 node, as `wftool ros2` does (extra ros2).",
+)
+@node_options
 def sitl(
     binary: Path | None, workdir: Path | None, rate_hz: int, motion: bool, time_reply: bool,
-    verify_s: float | None, port_base: int, project_dir: Path | None, **options: Any,
+    verify_s: float | None, port_base: int, project_dir: Path | None, ros2: bool,
+    **options: Any,
 ) -> None:  # fmt: skip
     """Run the virtual FC: the patched SITL with FSP on UART2, until Ctrl-C (or --verify).
 
     With --verify it is judged as a board is: the frame rate against what fsp_rate_hz gives at
     the FC's PID looptime (read over MSP), unless --expected-rate says otherwise. Without it,
-    --record, --csv and --foxglove read the stream for as long as the FC runs.
+    --record, --csv, --foxglove and --ros2 read the stream for as long as the FC runs.
     """
     from wftool.sitl.session import Motion, VirtualFcSession
 
     check_duration(verify_s, "--verify")
+    if options["accept_commands"] and not ros2:
+        raise UsageError("--accept-commands is the ROS 2 node's: add --ros2")
+    if options["accept_commands"] and options["uplink"]:
+        raise UsageError("--uplink and --accept-commands both send commands: choose one")
     if verify_s is not None and time_reply:
         if not options["uplink"]:
             raise UsageError("--time-reply answers commands: add --uplink to send them")
@@ -105,6 +118,10 @@ def sitl(
         err.print(f"FSP      [bold]{session.fsp_url}[/]  (fsp_rate_hz {rate_hz}{replies})")
         if options["expected_rate"] is None:
             options["expected_rate"] = session.expected_rate_hz
+        if ros2:
+            bridge = node_from(**options)
+            options["sinks"] = [bridge]
+            options["commander"] = bridge if options["accept_commands"] else None
         if verify_s is not None:
             verify_stream(session.fsp_url, DEFAULT_BAUDRATE, verify_s, **options)
             return
@@ -125,7 +142,12 @@ def sitl(
 def serving_stream(url: str, **options: Any) -> VerifySession | None:
     """The stream reader of a virtual FC served without --verify: it records and serves
     Foxglove if asked (None if not), and judges nothing."""
-    if not (options["record_path"] or options["csv_path"] or options["foxglove_port"] is not None):
+    if not (
+        options["record_path"]
+        or options["csv_path"]
+        or options["foxglove_port"] is not None
+        or options.get("sinks")
+    ):
         return None
     stream = session_from(url, DEFAULT_BAUDRATE, None, **options)
     if options["record_path"] is not None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import fields
 from pathlib import Path
 from typing import Any
@@ -17,12 +17,13 @@ from rich.live import Live
 from wftool.errors import UsageError
 from wftool.fsp import DEFAULT_BAUDRATE, ESTIMATORS
 from wftool.fsp.schedule import RATE_HZ_MAX, RATE_HZ_MIN
+from wftool.recording.events import Sink
 from wftool.recording.recorder import RECORD_FORMATS
 from wftool.verify.criteria import Criteria, criteria_for
 from wftool.verify.dashboard import render
 from wftool.verify.foxglove import DEFAULT_HOST as FOXGLOVE_HOST
 from wftool.verify.foxglove import DEFAULT_PORT as FOXGLOVE_PORT
-from wftool.verify.live import check_duration
+from wftool.verify.live import Commander, check_duration
 from wftool.verify.session import (
     VerifyResult,
     VerifySession,
@@ -149,10 +150,12 @@ def session_from(
     foxglove_host: str,
     expected_rate: float | None,
     clock: str | None,
+    sinks: Sequence[Sink] = (),
+    commander: Commander | None = None,
     **_others: Any,
 ) -> VerifySession:
-    """The session the `run_options` ask for (criteria: the defaults unless given); says
-    where its live view is served."""
+    """The session the `run_options` ask for (criteria: the defaults unless given), with
+    `sinks` and `commander` besides; says where its live view is served."""
     session = VerifySession(
         url,
         baud,
@@ -166,6 +169,8 @@ def session_from(
         record_format=record_format,
         foxglove_port=foxglove_port,
         foxglove_host=foxglove_host,
+        sinks=sinks,
+        commander=commander,
     )
     if session.live_view is not None:
         err.print(f"Foxglove  [bold]{session.live_view.url}[/]")

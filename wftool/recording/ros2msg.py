@@ -7,6 +7,7 @@ for the recording and the live view (stamps, units, covariances: docs/recording.
 
 from __future__ import annotations
 
+import functools
 import math
 import struct
 import sys
@@ -14,6 +15,7 @@ import time
 from array import array
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 from wftool.fsp import SensorFrame
 from wftool.recording.events import EVENT_KINDS, Event, StreamHealth
@@ -86,75 +88,23 @@ float32[] cell_temperature
 string location
 string serial_number
 """
-RC_CHANNELS_MSG = """\
-# The RC values the FC is using (µs-style, 1000-2000), as FSP streams them.
-std_msgs/Header header
-int16 roll
-int16 pitch
-int16 yaw
-int16 throttle
-int16 aux3
-int16 aux4
-"""
-MOTOR_RPM_MSG = """\
-# Motor speed, mechanical RPM from bidirectional DShot, motors 1-4.
-std_msgs/Header header
-uint16[4] rpm
-"""
-ATTITUDE_MSG = """\
-# Attitude from the FC's quaternion in Betaflight's convention, degrees (yaw 0-360).
-std_msgs/Header header
-float64 roll_deg
-float64 pitch_deg
-float64 yaw_deg
-"""
-STREAM_HEALTH_MSG = """\
-# The FSP stream as wftool sees it; counters are totals of the run so far.
-std_msgs/Header header
-uint32 seq
-uint32 epoch
-bool e1
-bool clock_locked
-bool connected
-uint64 packets
-uint64 frames
-uint64 lost_frames
-uint64 lost_packets
-uint64 fc_drops
-uint64 rejected_chunks
-uint32 resets
-uint32 reconnects
-"""
-MSP_RC_MSG = """\
-# The RC channels an MSP_RC reply carries (µs-style, 1000-2000), in the FC's channel order.
-std_msgs/Header header
-uint16[] channels
-"""
-STREAM_EVENT_MSG = """\
-# What the verify loop saw, exactly: `wftool replay` feeds these back.
-uint8 CONNECTED = 0
-uint8 DISCONNECTED = 1
-uint8 BYTES = 2
-uint8 COMMAND = 3
-float64 t
-uint8 kind
-uint8[] data
-int16[] rc
-"""
-STREAM_EVENTS_MSG = """\
-# What the verify loop saw, exactly and in order: `wftool replay` feeds these back.
-# Event i happened at t[i] (OBC monotonic time, s) and takes the next size[i] bytes of
-# data (BYTES: a read, as read) or the next size[i] values of rc (COMMAND: RC sent).
-uint8 CONNECTED = 0
-uint8 DISCONNECTED = 1
-uint8 BYTES = 2
-uint8 COMMAND = 3
-float64[] t
-uint8[] kind
-uint32[] size
-uint8[] data
-int16[] rc
-"""
+WFTOOL_MSGS = Path(__file__).resolve().with_name("wftool_msgs")
+"""The `wftool_msgs` ROS 2 package (package.xml, CMakeLists.txt, msg/): the one source of our
+types' definitions, read here and built by ROS 2 (`colcon build`, or `wftool ros2 --build-msgs`)."""
+
+
+def wftool_msg(name: str) -> str:
+    """The definition of `wftool_msgs/msg/<name>`, as its `.msg` file holds it."""
+    return (WFTOOL_MSGS / "msg" / f"{name}.msg").read_text(encoding="utf-8")
+
+
+RC_CHANNELS_MSG = wftool_msg("RcChannels")
+MOTOR_RPM_MSG = wftool_msg("MotorRpm")
+ATTITUDE_MSG = wftool_msg("Attitude")
+STREAM_HEALTH_MSG = wftool_msg("StreamHealth")
+MSP_RC_MSG = wftool_msg("MspRc")
+STREAM_EVENT_MSG = wftool_msg("StreamEvent")
+STREAM_EVENTS_MSG = wftool_msg("StreamEvents")
 
 
 @dataclass(frozen=True)
@@ -196,6 +146,15 @@ STREAM_EVENTS = _message_type("wftool_msgs/msg/StreamEvents", STREAM_EVENTS_MSG)
 MSP_RC = _message_type("wftool_msgs/msg/MspRc", MSP_RC_MSG, *_HEADER_USES)
 
 
+LIVE_PER_FRAME: tuple[tuple[str, MessageType, str], ...] = (
+    (IMU_TOPIC, IMU, "imu"),
+    (ATTITUDE_TOPIC, ATTITUDE, "attitude"),
+    (RC_TOPIC, RC_CHANNELS, "rc"),
+    (RPM_TOPIC, MOTOR_RPM, "rpm"),
+)
+"""What a live view publishes for every frame: (topic, type, the `FrameEncoder` method)."""
+
+
 class Throttle:
     """Lets a stamp through at most once per `period_ns` (and again when stamps go back)."""
 
@@ -211,20 +170,59 @@ class Throttle:
         return True
 
 
-# Offsets below count from the end of the 4-byte encapsulation header, as CDR alignment does.
-# A header with a 2-character frame_id ends at 15: 4 sec + 4 nanosec + 4 length + "fc\0".
-_HEADER = "iII3s"
-_IMU = struct.Struct("<4s" + _HEADER + "x37d")
-_BATTERY = struct.Struct("<4s" + _HEADER + "x7f3B?IIIs3xIs")
-_RC = struct.Struct("<4s" + _HEADER + "x6h")
-_RPM = struct.Struct("<4s" + _HEADER + "x4H")
-_ATTITUDE = struct.Struct("<4s" + _HEADER + "x3d")
-_HEALTH = struct.Struct("<4s" + _HEADER + "x2I3?5x6Q2I")
-_MSP_RC_HEAD = struct.Struct("<4s" + _HEADER + "xI")
 _EVENT_HEAD = struct.Struct("<4sdB3xI")
 _COUNT = struct.Struct("<I")
-_FRAME_ID = FRAME_ID.encode() + b"\0"
-assert len(_FRAME_ID) == 3, "the struct layouts above assume a 2-character frame_id"
+_ALIGN = {"d": 8, "Q": 8, "f": 4, "i": 4, "I": 4, "h": 2, "H": 2, "B": 1, "?": 1, "s": 1}
+
+
+def _cdr(*fields: str) -> struct.Struct:
+    """The struct of a CDR message: the encapsulation header, then `fields` (struct codes
+    with counts, "7f"), each padded to its alignment, which counts from the end of the
+    encapsulation header."""
+    layout, at = ["<4s"], 0
+    for field in fields:
+        code = field[-1]
+        count = int(field[:-1] or 1)
+        size = 1 if code == "s" else struct.calcsize(code)
+        if at % _ALIGN[code]:
+            pad = -at % _ALIGN[code]
+            layout.append(f"{pad}x")
+            at += pad
+        layout.append(field)
+        at += size * count
+    return struct.Struct("".join(layout))
+
+
+@dataclass(frozen=True)
+class _Layouts:
+    """Each message's struct for one `frame_id`: its length moves what follows the header."""
+
+    frame_id: bytes
+    """As CDR holds it: the characters and their terminating NUL."""
+    imu: struct.Struct
+    battery: struct.Struct
+    rc: struct.Struct
+    rpm: struct.Struct
+    attitude: struct.Struct
+    health: struct.Struct
+    msp_rc_head: struct.Struct
+
+
+@functools.lru_cache(maxsize=16)
+def _layouts(frame_id: str) -> _Layouts:
+    raw = frame_id.encode() + b"\0"
+    header = ("i", "I", "I", f"{len(raw)}s")  # stamp, frame_id's length and characters
+    return _Layouts(
+        frame_id=raw,
+        imu=_cdr(*header, "37d"),
+        battery=_cdr(*header, "7f", "3B", "?", "I", "I", "I", "1s", "I", "1s"),
+        rc=_cdr(*header, "6h"),
+        rpm=_cdr(*header, "4H"),
+        attitude=_cdr(*header, "3d"),
+        health=_cdr(*header, "2I", "3?", "6Q", "2I"),
+        msp_rc_head=_cdr(*header, "I"),
+    )
+
 
 _ZEROS9 = (0.0,) * 9
 _NO_ESTIMATE9 = (-1.0,) + (0.0,) * 8
@@ -235,16 +233,18 @@ _EMPTY = b"\0"  # an empty CDR string's content
 
 
 class FrameEncoder:
-    """CDR bytes of one frame's messages, stamped in Unix time.
+    """CDR bytes of one frame's messages, stamped in Unix time, with `frame_id`.
 
     `wall_offset_ns` maps the OBC monotonic clock (what the decoder's times are on) to
     Unix time; by default it is taken now, once, so a run's stamps keep their spacing.
     """
 
-    def __init__(self, wall_offset_ns: int | None = None) -> None:
+    def __init__(self, wall_offset_ns: int | None = None, frame_id: str = FRAME_ID) -> None:
         if wall_offset_ns is None:
             wall_offset_ns = time.time_ns() - time.monotonic_ns()
         self.wall_offset_ns = wall_offset_ns
+        self.frame_id = frame_id
+        self._layouts = _layouts(frame_id)
 
     def stamp_ns(self, t: float) -> int:
         """Unix time (ns) of OBC monotonic time `t` (s)."""
@@ -259,8 +259,7 @@ class FrameEncoder:
             t = fallback
         return self.wall_offset_ns + int(t * 1e9)
 
-    @staticmethod
-    def imu(frame: SensorFrame, stamp_ns: int) -> bytes:
+    def imu(self, frame: SensorFrame, stamp_ns: int) -> bytes:
         v = frame.values
         sec, nsec = divmod(stamp_ns, 1_000_000_000)
         w, x, y, z = v[9], v[10], v[11], v[12]
@@ -274,35 +273,37 @@ class FrameEncoder:
             ax = ay = az = 0.0
             acc_cov = _NO_ESTIMATE9
         rad = v[5] * _DEG
-        return _IMU.pack(
-            CDR_LE, sec, nsec, 3, _FRAME_ID,
+        layouts = self._layouts
+        return layouts.imu.pack(
+            CDR_LE, sec, nsec, len(layouts.frame_id), layouts.frame_id,
             x / 32768.0, y / 32768.0, z / 32768.0, w / 32768.0, *orientation_cov,
             v[6] * rad, v[7] * rad, v[8] * rad, *_ZEROS9,
             ax, ay, az, *acc_cov,
         )  # fmt: skip
 
-    @staticmethod
-    def rc(frame: SensorFrame, stamp_ns: int) -> bytes:
+    def rc(self, frame: SensorFrame, stamp_ns: int) -> bytes:
         sec, nsec = divmod(stamp_ns, 1_000_000_000)
-        return _RC.pack(CDR_LE, sec, nsec, 3, _FRAME_ID, *frame.values[13:19])
+        layouts = self._layouts
+        frame_id = layouts.frame_id
+        return layouts.rc.pack(CDR_LE, sec, nsec, len(frame_id), frame_id, *frame.values[13:19])
 
-    @staticmethod
-    def rpm(frame: SensorFrame, stamp_ns: int) -> bytes:
+    def rpm(self, frame: SensorFrame, stamp_ns: int) -> bytes:
         sec, nsec = divmod(stamp_ns, 1_000_000_000)
-        return _RPM.pack(CDR_LE, sec, nsec, 3, _FRAME_ID, *frame.values[19:23])
+        layouts = self._layouts
+        frame_id = layouts.frame_id
+        return layouts.rpm.pack(CDR_LE, sec, nsec, len(frame_id), frame_id, *frame.values[19:23])
 
-    @staticmethod
-    def attitude(frame: SensorFrame, stamp_ns: int) -> bytes:
-        return attitude_message(stamp_ns, *frame.euler_deg)
+    def attitude(self, frame: SensorFrame, stamp_ns: int) -> bytes:
+        return attitude_message(stamp_ns, *frame.euler_deg, frame_id=self.frame_id)
 
-    @staticmethod
-    def battery(frame: SensorFrame, stamp_ns: int) -> bytes:
-        return battery_message(stamp_ns, frame.values[23] / 100.0)
+    def battery(self, frame: SensorFrame, stamp_ns: int) -> bytes:
+        return battery_message(stamp_ns, frame.values[23] / 100.0, frame_id=self.frame_id)
 
     def health(self, health: StreamHealth) -> bytes:
         sec, nsec = divmod(self.stamp_ns(health.t), 1_000_000_000)
-        return _HEALTH.pack(
-            CDR_LE, sec, nsec, 3, _FRAME_ID,
+        layouts = self._layouts
+        return layouts.health.pack(
+            CDR_LE, sec, nsec, len(layouts.frame_id), layouts.frame_id,
             health.seq, health.epoch, health.e1, health.clock_locked, health.connected,
             health.packets, health.frames, health.lost_frames, health.lost_packets,
             health.fc_drops, health.rejected_chunks, health.resets, health.reconnects,
@@ -316,6 +317,8 @@ def imu_message(
     stamp_ns: int,
     angular_velocity_rad_s: Sequence[float],
     linear_acceleration_m_s2: Sequence[float] | None,
+    *,
+    frame_id: str = FRAME_ID,
 ) -> bytes:
     """An `Imu` without orientation (element 0 of its covariance −1, REP-145); acceleration
     None: no estimate either."""
@@ -325,25 +328,34 @@ def imu_message(
         if linear_acceleration_m_s2 is None
         else (linear_acceleration_m_s2, _ZEROS9)
     )
-    return _IMU.pack(
-        CDR_LE, sec, nsec, 3, _FRAME_ID,
+    layouts = _layouts(frame_id)
+    return layouts.imu.pack(
+        CDR_LE, sec, nsec, len(layouts.frame_id), layouts.frame_id,
         0.0, 0.0, 0.0, 0.0, *_NO_ESTIMATE9,
         *angular_velocity_rad_s, *_ZEROS9,
         *acc, *acc_cov,
     )  # fmt: skip
 
 
-def attitude_message(stamp_ns: int, roll_deg: float, pitch_deg: float, yaw_deg: float) -> bytes:
+def attitude_message(
+    stamp_ns: int, roll_deg: float, pitch_deg: float, yaw_deg: float, *, frame_id: str = FRAME_ID
+) -> bytes:
     sec, nsec = divmod(stamp_ns, 1_000_000_000)
-    return _ATTITUDE.pack(CDR_LE, sec, nsec, 3, _FRAME_ID, roll_deg, pitch_deg, yaw_deg)
+    layouts = _layouts(frame_id)
+    return layouts.attitude.pack(
+        CDR_LE, sec, nsec, len(layouts.frame_id), layouts.frame_id, roll_deg, pitch_deg, yaw_deg
+    )
 
 
-def battery_message(stamp_ns: int, voltage_v: float, current_a: float = _NAN) -> bytes:
+def battery_message(
+    stamp_ns: int, voltage_v: float, current_a: float = _NAN, *, frame_id: str = FRAME_ID
+) -> bytes:
     """A `BatteryState` with what an FC measures: voltage, and current if it has a sensor."""
     sec, nsec = divmod(stamp_ns, 1_000_000_000)
     temperature, *others = _BATTERY_UNMEASURED[:5]
-    return _BATTERY.pack(
-        CDR_LE, sec, nsec, 3, _FRAME_ID,
+    layouts = _layouts(frame_id)
+    return layouts.battery.pack(
+        CDR_LE, sec, nsec, len(layouts.frame_id), layouts.frame_id,
         voltage_v, temperature, current_a, *others,
         0, 0, 0, True,  # status, health, technology unknown; present
         0, 0,  # no cell voltages or temperatures
@@ -351,9 +363,12 @@ def battery_message(stamp_ns: int, voltage_v: float, current_a: float = _NAN) ->
     )  # fmt: skip
 
 
-def msp_rc_message(stamp_ns: int, channels: Sequence[int]) -> bytes:
+def msp_rc_message(stamp_ns: int, channels: Sequence[int], *, frame_id: str = FRAME_ID) -> bytes:
     sec, nsec = divmod(stamp_ns, 1_000_000_000)
-    head = _MSP_RC_HEAD.pack(CDR_LE, sec, nsec, 3, _FRAME_ID, len(channels))
+    layouts = _layouts(frame_id)
+    head = layouts.msp_rc_head.pack(
+        CDR_LE, sec, nsec, len(layouts.frame_id), layouts.frame_id, len(channels)
+    )
     return head + struct.pack(f"<{len(channels)}H", *channels)
 
 

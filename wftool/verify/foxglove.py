@@ -8,7 +8,7 @@ the live loop that never waits for a viewer (how: docs/ros2.md).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 from wftool.errors import UsageError
@@ -17,12 +17,9 @@ from wftool.fsp import SensorFrame, StatePacket
 from wftool.recording import ros2msg
 from wftool.recording.events import Event, StreamHealth
 from wftool.recording.ros2msg import (
-    ATTITUDE_TOPIC,
     BATTERY_TOPIC,
     HEALTH_TOPIC,
-    IMU_TOPIC,
-    RC_TOPIC,
-    RPM_TOPIC,
+    LIVE_PER_FRAME,
     FrameEncoder,
     MessageType,
     Throttle,
@@ -32,14 +29,8 @@ DEFAULT_PORT = 8765
 DEFAULT_HOST = "127.0.0.1"
 BACKLOG = 1024
 """Messages queued per client before its oldest are dropped (the SDK's default)."""
-_PER_FRAME: tuple[tuple[str, MessageType, Callable[[SensorFrame, int], bytes]], ...] = (
-    (IMU_TOPIC, ros2msg.IMU, FrameEncoder.imu),
-    (ATTITUDE_TOPIC, ros2msg.ATTITUDE, FrameEncoder.attitude),
-    (RC_TOPIC, ros2msg.RC_CHANNELS, FrameEncoder.rc),
-    (RPM_TOPIC, ros2msg.MOTOR_RPM, FrameEncoder.rpm),
-)
 TOPICS: dict[str, MessageType] = {
-    **{topic: kind for topic, kind, _ in _PER_FRAME},
+    **{topic: kind for topic, kind, _ in LIVE_PER_FRAME},
     BATTERY_TOPIC: ros2msg.BATTERY_STATE,
     HEALTH_TOPIC: ros2msg.STREAM_HEALTH,
 }
@@ -78,7 +69,9 @@ class FoxgloveLive:
             )
             for topic, kind in TOPICS.items()
         }
-        self._per_frame = [(channels[topic], encode) for topic, _, encode in _PER_FRAME]
+        self._per_frame = [
+            (channels[topic], getattr(self._encoder, method)) for topic, _, method in LIVE_PER_FRAME
+        ]
         self._battery = channels[BATTERY_TOPIC]
         self._health = channels[HEALTH_TOPIC]
         self._channels = channels

@@ -1,5 +1,5 @@
 """The live verify loop: read a port, hand each event to the monitor and the sinks, send the
-uplink pattern, reconnect.
+commands (the uplink pattern, or a commander's), reconnect.
 
     summary = run_live(LiveOptions("socket://127.0.0.1:5762", 2_000_000, 10.0), monitor,
                        sinks=[recorder])
@@ -16,6 +16,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 from wftool.errors import PortError, UsageError
 from wftool.fsp import CommandPacket, FspPort, StatePacket
@@ -49,6 +50,19 @@ class LiveOptions:
         check_duration(self.duration_s)
 
 
+class Commander(Protocol):
+    """What decides the commands a live run sends (the uplink pattern, a ROS 2 node): the loop
+    asks at `due` (math.inf: only when a read returns anyway) for `command(t)`, the command
+    to send at `t` (None: nothing), and tells `sent(t)` once the port took it."""
+
+    @property
+    def due(self) -> float: ...
+
+    def command(self, t: float) -> Sequence[int] | None: ...
+
+    def sent(self, t: float) -> None: ...
+
+
 def run_live(
     options: LiveOptions,
     monitor: StreamMonitor,
@@ -56,12 +70,16 @@ def run_live(
     on_refresh: Callable[[StreamSummary], None] | None = None,
     stop: threading.Event | None = None,
     now: Callable[[], float] = time.monotonic,
+    commander: Commander | None = None,
 ) -> StreamSummary:
     """Verify the stream on `options.url` until the duration is up or `stop` is set; the
     final summary. The monitor decodes (one decoder for the whole run); each sink gets
     every event, then each read's packets with a health snapshot (at most 10 Hz);
-    `on_refresh` gets a summary four times a second."""
-    return _LiveRun(options, monitor, sinks, now).run(on_refresh, stop)
+    `on_refresh` gets a summary four times a second. Commands come from the uplink pattern
+    (`options.uplink_rate_hz`) or from `commander`, never both."""
+    if commander is not None and options.uplink_rate_hz:
+        raise UsageError("the uplink pattern and another commander cannot both send commands")
+    return _LiveRun(options, monitor, sinks, now, commander).run(on_refresh, stop)
 
 
 class Dispatcher:
@@ -93,6 +111,7 @@ class _LiveRun:
         monitor: StreamMonitor,
         sinks: Sequence[Sink],
         now: Callable[[], float],
+        commander: Commander | None = None,
     ) -> None:
         self._options = options
         self._monitor = monitor
@@ -102,7 +121,7 @@ class _LiveRun:
         self._connected_once = False
         self._backoff = BACKOFF_FIRST_S
         self._retry_at = 0.0
-        self._uplink: UplinkPattern | None = None
+        self._commander = commander
 
     def run(
         self, on_refresh: Callable[[StreamSummary], None] | None, stop: threading.Event | None
@@ -112,7 +131,7 @@ class _LiveRun:
         end = start + duration_s if duration_s is not None else math.inf
         self._retry_at = next_refresh = start
         if uplink_rate_hz:
-            self._uplink = UplinkPattern(uplink_rate_hz, start)
+            self._commander = UplinkPattern(uplink_rate_hz, start)
         try:
             while True:
                 t = self._now()
@@ -158,19 +177,23 @@ class _LiveRun:
     def _exchange(self, port: FspPort, t: float) -> float:
         """One read, and the command that is due; the time the read returned (`t` if the
         port went away, which drops it)."""
-        uplink = self._uplink
+        commander = self._commander
         # A read returns at once when bytes come; else it waits no longer than the next command.
-        wait = READ_TIMEOUT_S if uplink is None else max(0.0, min(READ_TIMEOUT_S, uplink.due - t))
+        wait = READ_TIMEOUT_S
+        if commander is not None:
+            wait = max(0.0, min(wait, commander.due - t))
         try:
             data = port.read_bytes(wait)
             t = self._now()
             if data:
                 self._emit(Event("bytes", t, data))
-            if uplink is not None and t >= uplink.due:
-                rc = uplink.command()
-                command = port.send_command(rc, now=t)
-                self._emit(Event("command", t, rc=rc), command)
-                uplink.sent(t)
+            if commander is not None and t >= commander.due:
+                rc = commander.command(t)
+                if rc is not None:
+                    rc = tuple(rc)
+                    command = port.send_command(rc, now=t)
+                    self._emit(Event("command", t, rc=rc), command)
+                    commander.sent(t)
         except PortError:
             self._drop(self._now())
         return t

@@ -15,7 +15,7 @@ from contextlib import ExitStack
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from wftool.errors import VerificationFailed
+from wftool.errors import UsageError, VerificationFailed
 from wftool.fc.msp import MspClient
 from wftool.fsp import DEFAULT_BAUDRATE, ESTIMATORS, SensorFrame, StatePacket
 from wftool.fsp.schedule import frame_rate_hz
@@ -25,7 +25,7 @@ from wftool.recording.reader import RecordingReader
 from wftool.recording.recorder import RECORD_FORMATS, Recorder
 from wftool.verify.criteria import Criteria, Verdict, criteria_for, judge
 from wftool.verify.foxglove import DEFAULT_HOST, FoxgloveLive
-from wftool.verify.live import LiveOptions, run_live
+from wftool.verify.live import Commander, LiveOptions, run_live
 from wftool.verify.monitor import StreamMonitor, StreamSummary
 from wftool.verify.uplink import UplinkTracker
 
@@ -67,7 +67,8 @@ class VerifySession:
     to Foxglove on `foxglove_host` (port 0: any free one; `live_view.url` says which),
     from now until `close()`. `clock` names the estimator of the frames' OBC times
     (`wftool.fsp.ESTIMATORS`; None: the default). `sinks` get the run as the recording
-    does (`wftool.recording.events.Sink`; a ROS 2 node, say), and are closed with it.
+    does (`wftool.recording.events.Sink`; a ROS 2 node, say), and are closed with it;
+    `commander` sends commands instead of the uplink pattern (`wftool.verify.live.Commander`).
     """
 
     def __init__(
@@ -86,8 +87,12 @@ class VerifySession:
         foxglove_port: int | None = None,
         foxglove_host: str = DEFAULT_HOST,
         sinks: Sequence[Sink] = (),
+        commander: Commander | None = None,
     ) -> None:
         clock = clock or ESTIMATORS[0]
+        if commander is not None and uplink_rate_hz is not None:
+            raise UsageError("the uplink pattern and another commander cannot both send commands")
+        self._commander = commander
         self.options = LiveOptions(url, baudrate, duration_s, uplink_rate_hz)
         self.criteria = criteria or criteria_for(uplink=uplink_rate_hz is not None)
         uplink = UplinkTracker() if uplink_rate_hz is not None else None
@@ -122,7 +127,9 @@ class VerifySession:
             sinks.append(_PacketCallback(on_packets))
         with stop_on_signals(stop):
             try:
-                summary = run_live(self.options, self.monitor, sinks, on_refresh, stop)
+                summary = run_live(
+                    self.options, self.monitor, sinks, on_refresh, stop, commander=self._commander
+                )
             finally:
                 self.close()
         return self.result(summary)

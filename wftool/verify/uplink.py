@@ -29,8 +29,8 @@ def pattern_command(index: int, rate_hz: float) -> tuple[int, int, int, int, int
 
 
 class UplinkPattern:
-    """The pattern sent at `rate_hz` from `start`: `command()` is the one due at `due`;
-    `sent(t)` moves on (a command that could not be sent is sent again)."""
+    """The pattern sent at `rate_hz` from `start` (a `live.Commander`): `command(t)` is the
+    one due at `due`; `sent(t)` moves on (a command that could not be sent is sent again)."""
 
     def __init__(self, rate_hz: float, start: float) -> None:
         self.rate_hz = rate_hz
@@ -38,7 +38,7 @@ class UplinkPattern:
         self.due = start
         self.index = 0
 
-    def command(self) -> tuple[int, int, int, int, int, int]:
+    def command(self, t: float) -> tuple[int, int, int, int, int, int]:
         return pattern_command(self.index, self.rate_hz)
 
     def sent(self, t: float) -> None:
