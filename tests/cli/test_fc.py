@@ -232,7 +232,7 @@ def test_a_link_dropped_at_save_is_not_reported_as_saved(
     assert faults.fired == ["link dropped at b'save\\n'"]
     assert (code, "wftool: saved" in err) == (2, False), err
     assert err.splitlines()[-1].startswith(
-        "error: the link dropped before the FC got `save` — nothing was saved"
+        "error: `save` did not reach the FC (it still sat in its CLI) — nothing was saved"
     )
     _assert_as_before(on_sitl, eeprom)
 
@@ -250,6 +250,39 @@ def test_a_save_the_fc_got_before_the_link_dropped_is_confirmed_by_reading_back(
     assert "saved; waiting" not in err
     assert "saved: the FC did not confirm `save`, but every setting reads back as asked" in err
     on_sitl.restart()  # a cold start: what eeprom.bin holds
+    assert fc_settings(on_sitl, "gyro_lpf1_static_hz") == {"gyro_lpf1_static_hz": "200"}
+
+
+def test_a_save_confirmed_too_late_is_not_reported_as_nothing_saved(
+    on_sitl: VirtualFC,
+    capsys: pytest.CaptureFixture[str],
+    tmp_path: Path,
+    inject_faults: InjectFaults,
+) -> None:
+    # The FC saves at once but its confirmation arrives after the session's 5 s timeout.
+    faults = inject_faults(delay_reply_at=b"save", delay_s=6.0)
+    code, _, err = run(capsys, "set", "gyro_lpf1_static_hz=200", "--backup-dir", str(tmp_path))
+    assert faults.fired == ["reply to b'save\\n' held back 6.0 s"]
+    assert "nothing was saved" not in err
+    assert code == 0, err
+    assert "saved: the FC did not confirm `save`, but every setting reads back as asked" in err
+    on_sitl.restart()
+    assert fc_settings(on_sitl, "gyro_lpf1_static_hz") == {"gyro_lpf1_static_hz": "200"}
+
+
+def test_ctrl_c_after_save_went_out_is_not_reported_as_nothing_saved(
+    on_sitl: VirtualFC,
+    capsys: pytest.CaptureFixture[str],
+    tmp_path: Path,
+    inject_faults: InjectFaults,
+) -> None:
+    faults = inject_faults(interrupt_at=b"save")  # the FC got `save`; then Ctrl-C
+    code, _, err = run(capsys, "set", "gyro_lpf1_static_hz=200", "--backup-dir", str(tmp_path))
+    assert faults.fired == ["Ctrl-C after b'save\\n'"]
+    assert code == 130
+    assert "nothing was saved" not in err
+    assert "interrupted at `save`: whether the FC saved is not confirmed" in err
+    on_sitl.restart()
     assert fc_settings(on_sitl, "gyro_lpf1_static_hz") == {"gyro_lpf1_static_hz": "200"}
 
 

@@ -59,7 +59,7 @@ def _apply(port: str | None, plan: Plan | Planner, backup_dir: Path) -> None:
     report = apply_plan(find_board(port), plan, backup_dir, log)
     _print_report(report)
     if report.mismatches:
-        saved = "saved" if report.save_confirmed else "the link dropped at `save`"
+        saved = "saved" if report.save_confirmed else "`save` was not confirmed"
         raise ProtocolError(f"{saved}, but read back differs: {'; '.join(report.mismatches)}")
 
 

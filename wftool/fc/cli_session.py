@@ -266,8 +266,9 @@ class CliSession:
     def save(self) -> bool:
         """Persist the configuration; the FC reboots and the link is closed.
 
-        True once the FC confirmed (`Rebooting`); False if the link dropped first, when
-        nobody knows yet whether the FC got `save`: read the settings back to find out.
+        True once the FC confirmed (`Rebooting`); False if the link dropped first or the
+        confirmation did not come in time, when nobody knows yet whether the FC saved: read
+        the settings back to find out.
         """
         return self._leave("save")
 
@@ -289,7 +290,8 @@ class CliSession:
 
     def _leave(self, command: str) -> bool:
         """Send a command that ends in a reset; True once the FC says it is going down,
-        False if the link dropped before it did (the session is closed either way).
+        False if the link dropped or the FC said nothing conclusive in time (the session is
+        closed either way): the FC may or may not have got the command.
 
         If the FC refuses instead (e.g. `save` after errors inside `batch start`), the session
         stays open and `CliCommandError` says why.
@@ -297,7 +299,7 @@ class CliSession:
         try:
             self._send(command)
             reply = self._collect(command, self.timeout, until=b"Rebooting")
-        except PortError:
+        except (PortError, ProtocolError):  # dropped, or no answer in time: not confirmed
             self.close()
             return False
         if "Rebooting" not in reply:

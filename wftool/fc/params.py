@@ -290,7 +290,6 @@ def apply_plan(
                 features_before = msp.features()
                 msp.set_features(plan.features.applied_to(features_before))
                 session.enter()
-            confirmed = session.save()
         except ParameterError:
             leave_without_saving(session, board, log)
             raise
@@ -301,14 +300,34 @@ def apply_plan(
             leave_without_saving(session, board, log)
             log(f"interrupted {nothing_saved}")
             raise
-    if confirmed:
-        log("saved; waiting for the FC to reboot")
-        board.wait_back()
-    else:
-        log("the link dropped at `save` before the FC confirmed it; looking for the FC")
-        if wait_after_drop(board, log):
-            raise PortError(f"the link dropped before the FC got `save` {nothing_saved}")
-    after, features_after = _read_back(board, plan)
+        try:
+            confirmed = session.save()
+        except CliCommandError as exc:  # the FC refused `save`, so it saved nothing
+            leave_without_saving(session, board, log)
+            raise _with_context(exc, nothing_saved) from exc
+        except BaseException:  # `save` went out: the FC may have saved
+            leave_without_saving(session, board, log)
+            log(f"interrupted at `save`: whether the FC saved is not confirmed (backup: {backup})")
+            raise
+    still_in_cli = False
+    try:
+        if confirmed:
+            log("saved; waiting for the FC to reboot")
+            board.wait_back()
+        else:
+            log(
+                "the FC did not confirm `save` (the link dropped or it did not answer in "
+                "time); looking for the FC"
+            )
+            still_in_cli = wait_after_drop(board, log)
+    except WftoolError as exc:
+        raise _after_save(exc, confirmed, backup) from exc
+    if still_in_cli:
+        raise PortError(f"`save` did not reach the FC (it still sat in its CLI) {nothing_saved}")
+    try:
+        after, features_after = _read_back(board, plan)
+    except WftoolError as exc:
+        raise _after_save(exc, confirmed, backup) from exc
     rows = [
         ChangeRow(name, scope, before.value, requested, after.get((scope, name), "?"))
         for (scope, name), (before, requested) in changes.items()
@@ -321,6 +340,12 @@ def apply_plan(
     if not confirmed and not report.mismatches:
         log("saved: the FC did not confirm `save`, but every setting reads back as asked")
     return report
+
+
+def _after_save(exc: WftoolError, confirmed: bool, backup: Path) -> WftoolError:
+    """A failure after `save` went out: it says whether the FC confirmed the save."""
+    state = "the FC confirmed `save`" if confirmed else "whether the FC saved is not confirmed"
+    return _with_context(exc, f"— {state}, but the settings were not read back (backup: {backup})")
 
 
 def _with_context(exc: WftoolError, context: str) -> WftoolError:
