@@ -12,6 +12,7 @@ from wftool.errors import MspError
 from wftool.fc.msp import (
     FEATURE_RX_MSP,
     Cmd,
+    FrameReader,
     MspClient,
     MspVersion,
     RebootMode,
@@ -76,6 +77,39 @@ def test_decode_rejects_bad_checksums() -> None:
     v2 = b"$X>" + struct.pack("<BHH", 0, 1, 1) + b"\x05"
     with pytest.raises(MspError, match="CRC"):
         decode_frame(v2 + bytes([crc8_dvb_s2(v2[3:]) ^ 1]))
+
+
+ECHO = "loop://"
+"""pyserial's loopback: every byte written comes back, as on a link that echoes (no FC)."""
+
+
+@pytest.mark.parametrize("version", [MspVersion.V1, MspVersion.V2])
+def test_a_request_is_no_reply(version: MspVersion) -> None:
+    request = encode_request(Cmd.REBOOT, b"\x00", version)
+    frame, used = decode_frame(request)
+    assert frame is not None and frame.request and used == len(request)
+    reply = _v1_reply(Cmd.REBOOT, b"\x00")
+    frames = FrameReader().feed(request + reply + request)
+    assert [(f.cmd, f.payload, f.request) for f in frames] == [(Cmd.REBOOT, b"\x00", False)]
+
+
+@pytest.mark.parametrize("version", [MspVersion.V1, MspVersion.V2])
+def test_an_echoing_link_answers_nothing(version: MspVersion) -> None:
+    with MspClient.open(ECHO, version=version, timeout=0.2) as msp:
+        calls = {
+            "MSP_API_VERSION": msp.api_version,
+            "MSP_REBOOT": msp.reboot,
+            "MSP_SET_FEATURE_CONFIG": lambda: msp.set_features(FEATURE_RX_MSP),
+            "MSP_SET_RAW_RC": lambda: msp.set_raw_rc([1500] * 8),
+        }
+        outcomes = {}
+        for name, call in calls.items():
+            try:
+                call()
+                outcomes[name] = "answered"
+            except MspError as exc:
+                outcomes[name] = str(exc).removesuffix(f" from {ECHO}")
+    assert outcomes == {name: f"no MSP reply to {name}" for name in calls}
 
 
 def test_a_silent_peer_times_out() -> None:

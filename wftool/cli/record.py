@@ -127,7 +127,13 @@ def print_poll(result: PollResult, console: Console) -> None:
         f"{duration:.1f} s, window {result.window}, MSP v{result.version}: the FC answered "
         f"{replies / duration if duration > 0 else 0:.1f} commands/s"
         + (f"; {result.corrupt_frames} corrupt frames" if result.corrupt_frames else "")
-        + (f"; {result.stray_replies} stray replies" if result.stray_replies else ""),
+        + (f"; {result.stray_replies} stray replies" if result.stray_replies else "")
+        + (
+            f"; {result.echoed_requests} requests came back (the link echoes them; they are "
+            "no replies)"
+            if result.echoed_requests
+            else ""
+        ),
         markup=False,
     )
 

@@ -98,11 +98,13 @@ def encode_request(cmd: int, payload: bytes = b"", version: MspVersion = MspVers
 
 @dataclass(frozen=True)
 class MspFrame:
-    """A decoded frame from the FC. `error` is set for `$M!`/`$X!` replies."""
+    """A decoded frame. `error` is set for `$M!`/`$X!` replies."""
 
     cmd: int
     payload: bytes
     error: bool
+    request: bool = False
+    """`$M<`/`$X<`: a request (on a link that echoes, our own), never a reply from the FC."""
 
 
 def decode_frame(buffer: bytes) -> tuple[MspFrame | None, int]:
@@ -145,19 +147,22 @@ def decode_frame(buffer: bytes) -> tuple[MspFrame | None, int]:
             return None, start
         if crc8_dvb_s2(frame[3:end]) != frame[end]:
             raise MspError(f"MSP v2 CRC mismatch in frame for command {cmd}")
-    return MspFrame(cmd, bytes(frame[header:end]), direction == b"!"), start + end + 1
+    decoded = MspFrame(cmd, bytes(frame[header:end]), direction == b"!", direction == b"<")
+    return decoded, start + end + 1
 
 
 class FrameReader:
     """The frames in a byte stream that arrives in pieces (a poller's reads, a recording).
 
     Bytes between frames are dropped; a frame whose checksum fails is counted in
-    `corrupt` and skipped, and reading goes on from the next `$`.
+    `corrupt` and skipped, and reading goes on from the next `$`. Requests (`<`: a link
+    that echoes) are no replies: counted in `requests` and skipped.
     """
 
     def __init__(self) -> None:
         self._rx = bytearray()
         self.corrupt = 0
+        self.requests = 0
 
     def feed(self, data: bytes) -> list[MspFrame]:
         """The frames `data` completes, in order."""
@@ -174,6 +179,9 @@ class FrameReader:
             del rx[:used]
             if frame is None:
                 return frames
+            if frame.request:
+                self.requests += 1
+                continue
             frames.append(frame)
 
 
@@ -313,7 +321,8 @@ class MspClient:
     def request(self, cmd: int, payload: bytes = b"", timeout: float | None = None) -> bytes:
         """Send one command and return its reply payload.
 
-        Frames for other commands (late replies to an earlier timed-out request) are skipped.
+        Frames for other commands (late replies to an earlier timed-out request) are skipped,
+        and so are requests (a link that echoes what it gets): a reply comes from the FC.
         """
         name = _command_name(cmd)
         url = self.link.port or "link"
@@ -326,7 +335,7 @@ class MspClient:
                 frame, used = decode_frame(bytes(self._rx))
                 del self._rx[:used]
                 if frame is not None:
-                    if frame.cmd != cmd:
+                    if frame.request or frame.cmd != cmd:
                         continue
                     if frame.error:
                         raise MspError(f"the FC answered {name} with an error reply")
