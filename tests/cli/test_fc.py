@@ -14,7 +14,10 @@ from tests.conftest import answers_msp, fc_settings
 from tests.conftest import run_cli as run
 from tests.fc.faulty_transport import InjectFaults
 from wftool.fc.cli_session import CliSession
+from wftool.fc.msp import MspClient
 from wftool.sitl.process import VirtualFC
+
+MSP_SET_BOARD_INFO = 248
 
 
 def test_bad_assignment_is_a_usage_error(capsys: pytest.CaptureFixture[str]) -> None:
@@ -251,6 +254,33 @@ def test_a_save_the_fc_got_before_the_link_dropped_is_confirmed_by_reading_back(
     assert "saved: the FC did not confirm `save`, but every setting reads back as asked" in err
     on_sitl.restart()  # a cold start: what eeprom.bin holds
     assert fc_settings(on_sitl, "gyro_lpf1_static_hz") == {"gyro_lpf1_static_hz": "200"}
+
+
+def test_strings_from_the_user_and_the_fc_are_shown_as_text(
+    on_sitl: VirtualFC, capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    for name in ("Rick[/x]", "Quad[v2]"):
+        code, out, err = run(capsys, "set", f"craft_name={name}", "--backup-dir", str(tmp_path))
+        assert code == 0, err
+        row = next(line for line in out.splitlines() if "craft_name" in line)
+        assert [cell.strip() for cell in row.split("│")][4:6] == [name, "ok"], out
+    # Betaflight takes any bytes as a board name, once (MSP_SET_BOARD_INFO).
+    name = b"[/]\x1b[2J\x1b]8;;x\x07"
+    with MspClient.open(on_sitl.url) as msp:
+        msp.request(MSP_SET_BOARD_INFO, bytes([len(name)]) + name + b"\x00")
+    code, out, err = run(capsys, "info")
+    assert code == 0, err
+    assert "board [/]\\x1b[2J\\x1b]8;;x\\x07 target SITL" in out
+    assert "\x1b" not in out + err
+
+
+def test_an_error_quoting_the_user_is_one_line_of_text(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    code, _, err = run(capsys, "info", "--port", "socket://\x1b[2J[/]:x\nerror: forged")
+    assert code == 2
+    assert err.count("\n") == 1 and "\x1b" not in err
+    assert err.startswith("error: cannot open socket://\\x1b[2J[/]:x\\nerror: forged: ")
 
 
 def test_a_save_confirmed_too_late_is_not_reported_as_nothing_saved(

@@ -12,7 +12,9 @@ from typing import Any
 import click
 from rich.console import Console
 from rich.live import Live
+from rich.text import Text
 
+from wftool.display import shown
 from wftool.errors import UsageError
 from wftool.fsp import DEFAULT_BAUDRATE, ESTIMATORS
 from wftool.fsp.schedule import RATE_HZ_MAX, RATE_HZ_MIN
@@ -170,7 +172,7 @@ def session_from(
         foxglove_host=foxglove_host,
     )
     if session.live_view is not None:
-        err.print(f"Foxglove  [bold]{session.live_view.url}[/]")
+        err.print(Text.assemble("Foxglove  ", shown(session.live_view.url, "bold")))
     return session
 
 

@@ -97,7 +97,10 @@ def url_problem(url: str) -> str | None:
 
     pyserial's own complaints about these are cryptic ("'debug|info|warning|error'").
     """
-    parts = urlsplit(url)
+    try:
+        parts = urlsplit(url)
+    except ValueError as exc:  # an unbalanced '[' in the host: "Invalid IPv6 URL"
+        return f"not a URL ({exc})"
     if parts.scheme not in NETWORK_SCHEMES:
         return None
     example = f"{parts.scheme}://127.0.0.1:{NETWORK_SCHEMES[parts.scheme]}"
