@@ -29,7 +29,7 @@ from wftool.errors import (
     UsageError,
     WftoolError,
 )
-from wftool.fc.backup import check_backup_dir, feature_mask_of, write_backup
+from wftool.fc.backup import check_backup_dir, feature_mask_of, split_backup, write_backup
 from wftool.fc.board import Board, leave_open_cli, wait_after_drop
 from wftool.fc.cli_session import CliSession, Setting, line_problem
 from wftool.fc.msp import RECEIVER_FEATURES, MspClient
@@ -168,9 +168,13 @@ def _plan_from_toml(text: str, name: str) -> Plan:
 
 
 def parse_cli_script(text: str, name: str) -> Plan:
-    """A Betaflight CLI script: comments and batch/save skipped, unknown commands refused."""
+    """A Betaflight CLI script: comments and batch/save skipped, unknown commands refused.
+
+    Of a wftool backup only the dump is replayed, never the header above it.
+    """
     commands = []
-    for number, raw in enumerate(text.splitlines(), start=1):
+    header, lines = split_backup(text)
+    for number, raw in enumerate(lines, start=len(header) + 1):
         line = raw.split("#", 1)[0].strip()  # the FC strips comments the same way
         if not line:
             continue
