@@ -143,6 +143,17 @@ def test_a_port_that_never_opens_prints_its_error_and_nothing_else(capsys):
     assert err.startswith("error: cannot open socket://127.0.0.1:9") and err.count("\n") == 1
 
 
+@pytest.mark.parametrize("rate", ["nan", "inf", "-inf", "-5", "0", "1e9", "8001"])
+def test_an_uplink_rate_the_fc_cannot_take_is_refused(rate, capsys):
+    code, out, err = run(capsys, "verify", "--stream", "--port", NO_PORT, "--duration", "1",
+                         "--uplink", "--uplink-rate", rate)  # fmt: skip
+    assert (code, out) == (2, "")
+    assert err == (
+        "error: --uplink-rate must be above 0 and at most 8000 commands/s (the FC applies one "
+        f"per FSP frame at most), not {float(rate):g}\n"
+    )
+
+
 def test_the_baud_rate_must_be_positive(capsys):
     code, out, err = run(capsys, "verify", "--stream", "--port", NO_PORT, "--baud", "0")
     assert (code, out) == (2, "")

@@ -31,6 +31,7 @@ from wftool.verify.session import (
     fc_frame_rate_hz,
     replay,
 )
+from wftool.verify.uplink import check_uplink_rate
 
 err = Console(stderr=True, highlight=False)
 
@@ -80,7 +81,8 @@ criteria_options = _options(
 run_options = _options(
     click.option("--uplink", is_flag=True, help="Send a command pattern and expect it back in RC."),
     click.option("--uplink-rate", type=float, default=50.0, show_default=True,
-                 help="Commands per second."),
+                 callback=lambda _ctx, param, value: check_uplink_rate(value, param.opts[0]),
+                 help=f"Commands per second (at most {RATE_HZ_MAX})."),
     click.option("--record", "record_path", type=click.Path(path_type=Path),
                  help="Record the run (messages and raw bytes): a rosbag2 directory, or one "
                  "MCAP file if the path ends in .mcap. `wftool replay` reads either."),

@@ -35,7 +35,7 @@ from wftool.verify.recording import (
     replay_recording,
     run_metadata,
 )
-from wftool.verify.uplink import UplinkTracker
+from wftool.verify.uplink import UplinkTracker, check_uplink_rate
 
 
 def fc_frame_rate_hz(msp_url: str, fsp_rate_hz: float) -> float:
@@ -122,6 +122,8 @@ class VerifySession:
         foxglove_host: str = DEFAULT_HOST,
     ) -> None:
         clock = clock or ESTIMATORS[0]
+        if uplink_rate_hz is not None:
+            check_uplink_rate(uplink_rate_hz)
         self.options = LiveOptions(url, baudrate, duration_s, uplink_rate_hz)
         self.criteria = criteria or criteria_for(uplink=uplink_rate_hz is not None)
         uplink = UplinkTracker() if uplink_rate_hz is not None else None
