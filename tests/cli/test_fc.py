@@ -107,6 +107,39 @@ def test_configure_fsp_prints_what_it_changed(
     assert "serial_update_rate_hz" in out and "features (MSP)" in out
 
 
+@pytest.mark.parametrize("fields", [6, 8])
+def test_a_serial_line_of_another_shape_is_refused_and_changes_nothing(
+    on_sitl: VirtualFC,
+    capsys: pytest.CaptureFixture[str],
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    fields: int,
+) -> None:
+    real_run = CliSession.run
+
+    def other_serial(self: CliSession, command: str, timeout: float | None = None) -> str:
+        """The FC's own `serial` output, with its first line one field short or long."""
+        output = real_run(self, command, timeout)
+        if command != "serial":
+            return output
+        first, _, rest = output.partition("\n")
+        first = first.rsplit(" ", 1)[0] if fields == 6 else f"{first} 0"
+        return f"{first}\n{rest}"
+
+    monkeypatch.setattr(CliSession, "run", other_serial)
+    eeprom = _eeprom(on_sitl)
+    backups = tmp_path / "backups"
+    code, _, err = run(capsys, "configure", "fsp", "--uart", "2", "--baud", "2000000",
+                       "--backup-dir", str(backups))  # fmt: skip
+    assert code == 1, err
+    last = err.splitlines()[-1]
+    assert last.startswith("error: the FC's `serial` output has a line wftool does not know: ")
+    assert last.endswith("— nothing was saved; the FC drops unsaved changes on reboot "
+                         f"(backup: {next(backups.iterdir())})")  # fmt: skip
+    assert "interrupted" not in err
+    _assert_as_before(on_sitl, eeprom)
+
+
 def test_flash_without_firmware_or_fc_answer(capsys: pytest.CaptureFixture[str]) -> None:
     code, _, err = run(capsys, "flash", "--no-reboot")
     assert code == 2 and err.startswith("error: name the FIRMWARE to flash")

@@ -416,6 +416,17 @@ class MspClient:
         """The PID loop period the FC measures (MSP_STATUS); 0 while the loop does not run."""
         return _Fields(Cmd.STATUS, self.request(Cmd.STATUS)).unpack("H")[0]
 
+    def pid_looptime_us(self) -> int:
+        """The period of the running PID loop, which times the FSP frames; `MspError` if the
+        FC reports none (0: the loop does not run)."""
+        cycle = self.pid_cycle_us()
+        if cycle == 0:
+            raise MspError(
+                f"the FC on {self.link.port or 'its link'} reports no PID loop running "
+                "(cycle time 0 in MSP_STATUS): its frame rate cannot be known"
+            )
+        return cycle
+
     def features(self) -> int:
         """The configured feature bit mask (takes effect at boot)."""
         return _Fields(Cmd.FEATURE_CONFIG, self.request(Cmd.FEATURE_CONFIG)).unpack("I")[0]

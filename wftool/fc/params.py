@@ -455,7 +455,8 @@ def _features(session: CliSession) -> dict[str, bool]:
 
 def _serial_ports(session: CliSession) -> set[str]:
     """Port identifiers the FC lists in `serial` (UART1, VCP, …)."""
-    return {line.split()[1].upper() for line in session.run("serial").splitlines() if line.strip()}
+    lines = session.run("serial").splitlines()
+    return {fields[1].upper() for line in lines if len(fields := line.split()) > 1}
 
 
 def _serial_problem(text: str, ports: set[str]) -> str | None:

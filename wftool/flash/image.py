@@ -130,6 +130,8 @@ def erased_sectors(regions: list[WriteRegion], layout: FlashLayout) -> set[int]:
 
 def contains_string(image: IntelHex, text: str, *, whole: bool = True) -> bool:
     """Whether the image holds C string `text` (or, with `whole=False`, one starting with it)."""
+    if not text.isascii():
+        return False  # an FC's string with bytes MSP decoding replaced: no image holds it
     needle = b"\0" + text.encode("ascii") + (b"\0" if whole else b"")
     return any(
         needle in bytes(image.tobinarray(start=start, size=end - start))
