@@ -94,6 +94,17 @@ def test_verify_records_a_rosbag_and_serves_foxglove(capsys, tmp_path):
     assert json.loads(out)["frames"] == counts["/fsp/imu"]
 
 
+def test_serving_foxglove_beyond_localhost_is_warned_of_first(capsys):
+    pytest.importorskip("foxglove")
+    code, _, err = run(capsys, "verify", "--stream", "--port", NO_PORT, "--duration", "1",
+                       "--foxglove", "0", "--foxglove-host", "0.0.0.0")  # fmt: skip
+    assert code == 2
+    assert err.splitlines()[0] == (
+        "warning: the Foxglove view on 0.0.0.0:0 serves the live stream to anyone who can "
+        "reach this machine, without authentication"
+    )
+
+
 def test_a_mcap_record_path_is_one_ros2_file_and_replays_with_its_clock(capsys, tmp_path):
     single = tmp_path / "run.mcap"
     code, _, err = run(capsys, "verify", "--stream", "--port", play(flight(600)),

@@ -22,6 +22,7 @@ from wftool.verify.criteria import Criteria
 from wftool.verify.dashboard import render
 from wftool.verify.foxglove import DEFAULT_HOST as FOXGLOVE_HOST
 from wftool.verify.foxglove import DEFAULT_PORT as FOXGLOVE_PORT
+from wftool.verify.foxglove import exposure_warning
 from wftool.verify.live import check_duration
 from wftool.verify.recording import RECORD_FORMATS
 from wftool.verify.session import (
@@ -158,7 +159,9 @@ def session_from(
     **_others: Any,
 ) -> VerifySession:
     """The session the `run_options` ask for (criteria: the defaults unless given); says
-    where its live view is served."""
+    where its live view is served (warning first if it reaches beyond this machine)."""
+    if foxglove_port is not None and (warning := exposure_warning(foxglove_host, foxglove_port)):
+        err.print(shown(warning, "yellow"), soft_wrap=True)
     session = VerifySession(
         url,
         baud,
