@@ -19,7 +19,6 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -29,9 +28,9 @@ from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
 from tests.conftest import run_cli as run
+from tests.fc.stand_in import msp_stand_in
 from tests.verify.fake_fc import PACKET_S, FakeFc
 from tests.verify.test_rosbag import flight
-from wftool.fc.msp import MspVersion, decode_frame, encode_request
 from wftool.verify.recording import Event, Recorder
 
 NO_PORT = "socket://127.0.0.1:9"  # nothing listens: reached only if the checks before pass
@@ -168,36 +167,9 @@ def test_an_uplink_rate_the_fc_cannot_take_is_refused(rate, capsys):
     )
 
 
-@contextlib.contextmanager
-def msp_status_stand_in(cycle_us: int) -> Iterator[str]:
-    """A STAND-IN for an FC's MSP port (not an FC): it answers every request with an
-    MSP_STATUS payload whose PID cycle time is `cycle_us`. Yields its URL."""
-    listener = socket.create_server(("127.0.0.1", 0))
-
-    def serve() -> None:
-        connection, _ = listener.accept()
-        with connection:
-            received = b""
-            while data := connection.recv(256):
-                received += data
-                frame, used = decode_frame(received)
-                received = received[used:]
-                if frame is not None:
-                    payload = struct.pack("<HHHI", cycle_us, 0, 0, 0) + bytes(12)
-                    reply = encode_request(frame.cmd, payload, MspVersion.V2)
-                    connection.sendall(reply.replace(b"$X<", b"$X>", 1))
-
-    thread = threading.Thread(target=serve, daemon=True)
-    thread.start()
-    try:
-        yield f"socket://127.0.0.1:{listener.getsockname()[1]}"
-    finally:
-        listener.close()
-        thread.join(5)
-
-
 def test_an_fc_without_a_running_pid_loop_gives_no_frame_rate(capsys):
-    with msp_status_stand_in(0) as fc_url:
+    status = struct.pack("<HHHI", 0, 0, 0, 0) + bytes(12)  # PID cycle 0: the loop is not run
+    with msp_stand_in(lambda _command: status) as fc_url:
         code, out, err = run(capsys, "verify", "--stream", "--port", NO_PORT, "--duration", "1",
                              "--fsp-rate", "1000", "--fc", fc_url)  # fmt: skip
     assert (code, out) == (1, "")

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import serial
 
 from wftool.errors import CliCommandError, PortError, ProtocolError
-from wftool.fc.transport import open_port, port_errors
+from wftool.fc.transport import open_port, port_errors, read_size
 
 PROMPT = b"\r\n# "
 SETTLE_S = 0.05
@@ -219,12 +219,15 @@ class CliSession:
         last_data = time.monotonic()
         with port_errors(self.url):
             while True:
-                chunk = self.link.read(max(1, self.link.in_waiting))
+                chunk = self.link.read(read_size(self.link))
                 now = time.monotonic()
                 if chunk:
                     received += chunk
                     last_data = now
-                    if until is not None and until in received:
+                    # Only where `until` can end: the whole reply, searched per chunk, was
+                    # quadratic (a 400 KB `diff all` did not arrive within its timeout).
+                    tail = len(received) - len(chunk) - (len(until) if until else 0)
+                    if until is not None and received.find(until, max(0, tail)) >= 0:
                         break
                 elif received.endswith(PROMPT) and now - last_data >= settle:
                     break
@@ -323,7 +326,7 @@ def cli_is_open(link: serial.SerialBase) -> bool:
         received = bytearray()
         deadline = time.monotonic() + PROBE_S
         while not received.endswith(PROMPT) and time.monotonic() < deadline:
-            received += link.read(max(1, link.in_waiting))
+            received += link.read(read_size(link))
         if not received.endswith(PROMPT):
             return False
         link.write(ERASE * (LINE_MAX + 1))

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import serial
 
 from wftool.errors import MspError
-from wftool.fc.transport import open_port, port_errors
+from wftool.fc.transport import open_port, port_errors, read_size
 from wftool.fsp.crc import DVB_S2_INIT, crc8
 
 
@@ -342,7 +342,7 @@ class MspClient:
                     return frame.payload
                 if time.monotonic() > deadline:
                     raise MspError(f"no MSP reply to {name} from {url}")
-                self._rx += self.link.read(max(1, self.link.in_waiting))
+                self._rx += self.link.read(read_size(self.link))
 
     def api_version(self) -> ApiVersion:
         return ApiVersion(*_Fields(Cmd.API_VERSION, self.request(Cmd.API_VERSION)).unpack("BBB"))

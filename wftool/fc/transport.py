@@ -7,6 +7,7 @@ surfaces as one `PortError` with a one-line message instead of a pyserial traceb
 
 from __future__ import annotations
 
+import array
 import contextlib
 import re
 import select
@@ -16,6 +17,13 @@ from urllib.parse import urlsplit
 
 import serial
 from serial.tools import list_ports
+from serial.urlhandler import protocol_socket
+
+try:
+    import fcntl
+    import termios
+except ImportError:  # not POSIX: in_waiting it is
+    fcntl = None  # type: ignore[assignment]
 
 from wftool.errors import PortError, UsageError
 
@@ -90,6 +98,17 @@ def read_within(port: serial.SerialBase, fd: int | None, timeout: float) -> byte
     port.timeout = max(0.0, timeout)
     data = port.read(1)
     return data + port.read(port.in_waiting) if data else data
+
+
+def read_size(port: serial.SerialBase) -> int:
+    """How much to read from `port` now: what has arrived, at least 1 (a read then waits for
+    it). pyserial's `in_waiting` of a socket:// port is never above 1 (it asks `select`),
+    so a reply of N bytes took N reads; the kernel's count is asked instead."""
+    if isinstance(port, protocol_socket.Serial) and port.is_open and fcntl is not None:
+        count = array.array("i", [0])
+        fcntl.ioctl(port.fileno(), termios.FIONREAD, count)
+        return max(1, count[0])
+    return max(1, port.in_waiting)
 
 
 def url_problem(url: str) -> str | None:
