@@ -14,7 +14,10 @@ from tests.conftest import answers_msp, fc_settings
 from tests.conftest import run_cli as run
 from tests.fc.faulty_transport import InjectFaults
 from wftool.fc.cli_session import CliSession
+from wftool.fc.msp import MspClient
 from wftool.sitl.process import VirtualFC
+
+MSP_SET_BOARD_INFO = 248
 
 
 def test_bad_assignment_is_a_usage_error(capsys: pytest.CaptureFixture[str]) -> None:
@@ -102,6 +105,39 @@ def test_configure_fsp_prints_what_it_changed(
     row = next(line for line in out.splitlines() if "fsp_rate_hz" in line)
     assert [cell.strip() for cell in row.split("│")[1:-1]][2:] == ["1100", "800", "ok"]
     assert "serial_update_rate_hz" in out and "features (MSP)" in out
+
+
+@pytest.mark.parametrize("fields", [6, 8])
+def test_a_serial_line_of_another_shape_is_refused_and_changes_nothing(
+    on_sitl: VirtualFC,
+    capsys: pytest.CaptureFixture[str],
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    fields: int,
+) -> None:
+    real_run = CliSession.run
+
+    def other_serial(self: CliSession, command: str, timeout: float | None = None) -> str:
+        """The FC's own `serial` output, with its first line one field short or long."""
+        output = real_run(self, command, timeout)
+        if command != "serial":
+            return output
+        first, _, rest = output.partition("\n")
+        first = first.rsplit(" ", 1)[0] if fields == 6 else f"{first} 0"
+        return f"{first}\n{rest}"
+
+    monkeypatch.setattr(CliSession, "run", other_serial)
+    eeprom = _eeprom(on_sitl)
+    backups = tmp_path / "backups"
+    code, _, err = run(capsys, "configure", "fsp", "--uart", "2", "--baud", "2000000",
+                       "--backup-dir", str(backups))  # fmt: skip
+    assert code == 1, err
+    last = err.splitlines()[-1]
+    assert last.startswith("error: the FC's `serial` output has a line wftool does not know: ")
+    assert last.endswith("— nothing was saved; the FC drops unsaved changes on reboot "
+                         f"(backup: {next(backups.iterdir())})")  # fmt: skip
+    assert "interrupted" not in err
+    _assert_as_before(on_sitl, eeprom)
 
 
 def test_flash_without_firmware_or_fc_answer(capsys: pytest.CaptureFixture[str]) -> None:
@@ -232,7 +268,7 @@ def test_a_link_dropped_at_save_is_not_reported_as_saved(
     assert faults.fired == ["link dropped at b'save\\n'"]
     assert (code, "wftool: saved" in err) == (2, False), err
     assert err.splitlines()[-1].startswith(
-        "error: the link dropped before the FC got `save` — nothing was saved"
+        "error: `save` did not reach the FC (it still sat in its CLI) — nothing was saved"
     )
     _assert_as_before(on_sitl, eeprom)
 
@@ -250,6 +286,66 @@ def test_a_save_the_fc_got_before_the_link_dropped_is_confirmed_by_reading_back(
     assert "saved; waiting" not in err
     assert "saved: the FC did not confirm `save`, but every setting reads back as asked" in err
     on_sitl.restart()  # a cold start: what eeprom.bin holds
+    assert fc_settings(on_sitl, "gyro_lpf1_static_hz") == {"gyro_lpf1_static_hz": "200"}
+
+
+def test_strings_from_the_user_and_the_fc_are_shown_as_text(
+    on_sitl: VirtualFC, capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    for name in ("Rick[/x]", "Quad[v2]"):
+        code, out, err = run(capsys, "set", f"craft_name={name}", "--backup-dir", str(tmp_path))
+        assert code == 0, err
+        row = next(line for line in out.splitlines() if "craft_name" in line)
+        assert [cell.strip() for cell in row.split("│")][4:6] == [name, "ok"], out
+    # Betaflight takes any bytes as a board name, once (MSP_SET_BOARD_INFO).
+    name = b"[/]\x1b[2J\x1b]8;;x\x07"
+    with MspClient.open(on_sitl.url) as msp:
+        msp.request(MSP_SET_BOARD_INFO, bytes([len(name)]) + name + b"\x00")
+    code, out, err = run(capsys, "info")
+    assert code == 0, err
+    assert "board [/]\\x1b[2J\\x1b]8;;x\\x07 target SITL" in out
+    assert "\x1b" not in out + err
+
+
+def test_an_error_quoting_the_user_is_one_line_of_text(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    code, _, err = run(capsys, "info", "--port", "socket://\x1b[2J[/]:x\nerror: forged")
+    assert code == 2
+    assert err.count("\n") == 1 and "\x1b" not in err
+    assert err.startswith("error: cannot open socket://\\x1b[2J[/]:x\\nerror: forged: ")
+
+
+def test_a_save_confirmed_too_late_is_not_reported_as_nothing_saved(
+    on_sitl: VirtualFC,
+    capsys: pytest.CaptureFixture[str],
+    tmp_path: Path,
+    inject_faults: InjectFaults,
+) -> None:
+    # The FC saves at once but its confirmation arrives after the session's 5 s timeout.
+    faults = inject_faults(delay_reply_at=b"save", delay_s=6.0)
+    code, _, err = run(capsys, "set", "gyro_lpf1_static_hz=200", "--backup-dir", str(tmp_path))
+    assert faults.fired == ["reply to b'save\\n' held back 6.0 s"]
+    assert "nothing was saved" not in err
+    assert code == 0, err
+    assert "saved: the FC did not confirm `save`, but every setting reads back as asked" in err
+    on_sitl.restart()
+    assert fc_settings(on_sitl, "gyro_lpf1_static_hz") == {"gyro_lpf1_static_hz": "200"}
+
+
+def test_ctrl_c_after_save_went_out_is_not_reported_as_nothing_saved(
+    on_sitl: VirtualFC,
+    capsys: pytest.CaptureFixture[str],
+    tmp_path: Path,
+    inject_faults: InjectFaults,
+) -> None:
+    faults = inject_faults(interrupt_at=b"save")  # the FC got `save`; then Ctrl-C
+    code, _, err = run(capsys, "set", "gyro_lpf1_static_hz=200", "--backup-dir", str(tmp_path))
+    assert faults.fired == ["Ctrl-C after b'save\\n'"]
+    assert code == 130
+    assert "nothing was saved" not in err
+    assert "interrupted at `save`: whether the FC saved is not confirmed" in err
+    on_sitl.restart()
     assert fc_settings(on_sitl, "gyro_lpf1_static_hz") == {"gyro_lpf1_static_hz": "200"}
 
 

@@ -14,6 +14,7 @@ import json
 import os
 import signal
 import socket
+import struct
 import subprocess
 import sys
 import threading
@@ -27,6 +28,7 @@ from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
 from tests.conftest import run_cli as run
+from tests.fc.stand_in import msp_stand_in
 from tests.recording.test_rosbag import flight
 from tests.verify.fake_fc import PACKET_S, FakeFc
 from wftool.recording.events import Event
@@ -92,6 +94,17 @@ def test_verify_records_a_rosbag_and_serves_foxglove(capsys, tmp_path):
     assert json.loads(out)["frames"] == counts["/fsp/imu"]
 
 
+def test_serving_foxglove_beyond_localhost_is_warned_of_first(capsys):
+    pytest.importorskip("foxglove")
+    code, _, err = run(capsys, "verify", "--stream", "--port", NO_PORT, "--duration", "1",
+                       "--foxglove", "0", "--foxglove-host", "0.0.0.0")  # fmt: skip
+    assert code == 2
+    assert err.splitlines()[0] == (
+        "warning: the Foxglove view on 0.0.0.0:0 serves the live stream to anyone who can "
+        "reach this machine, without authentication"
+    )
+
+
 def test_a_mcap_record_path_is_one_ros2_file_and_replays_with_its_clock(capsys, tmp_path):
     single = tmp_path / "run.mcap"
     code, _, err = run(capsys, "verify", "--stream", "--port", play(flight(600)),
@@ -142,6 +155,29 @@ def test_a_port_that_never_opens_prints_its_error_and_nothing_else(capsys):
     code, out, err = run(capsys, "verify", "--stream", "--port", NO_PORT, "--duration", "1")
     assert (code, out) == (2, "")
     assert err.startswith("error: cannot open socket://127.0.0.1:9") and err.count("\n") == 1
+
+
+@pytest.mark.parametrize("rate", ["nan", "inf", "-inf", "-5", "0", "1e9", "8001"])
+def test_an_uplink_rate_the_fc_cannot_take_is_refused(rate, capsys):
+    code, out, err = run(capsys, "verify", "--stream", "--port", NO_PORT, "--duration", "1",
+                         "--uplink", "--uplink-rate", rate)  # fmt: skip
+    assert (code, out) == (2, "")
+    assert err == (
+        "error: --uplink-rate must be above 0 and at most 8000 commands/s (the FC applies one "
+        f"per FSP frame at most), not {float(rate):g}\n"
+    )
+
+
+def test_an_fc_without_a_running_pid_loop_gives_no_frame_rate(capsys):
+    status = struct.pack("<HHHI", 0, 0, 0, 0) + bytes(12)  # PID cycle 0: the loop is not run
+    with msp_stand_in(lambda _command: status) as fc_url:
+        code, out, err = run(capsys, "verify", "--stream", "--port", NO_PORT, "--duration", "1",
+                             "--fsp-rate", "1000", "--fc", fc_url)  # fmt: skip
+    assert (code, out) == (1, "")
+    assert err == (
+        f"error: the FC on {fc_url} reports no PID loop running (cycle time 0 in MSP_STATUS): "
+        "its frame rate cannot be known\n"
+    )
 
 
 def test_the_baud_rate_must_be_positive(capsys):

@@ -34,6 +34,10 @@ class FaultyTransport:
     """Drop the link when a write starts with this (e.g. b"save")."""
     drop_after_sending: bool = False
     """Whether the FC still gets that write before the link drops."""
+    delay_reply_at: bytes | None = None
+    """Hold back what the FC sends after a write starting with this (e.g. b"save"): a slow FC."""
+    delay_s: float = 6.0
+    """How long that reply is held back."""
     interrupt_at: bytes | None = None
     """Raise KeyboardInterrupt (a Ctrl-C) right after a write starting with this is sent."""
     fired: list[str] = field(default_factory=list)
@@ -60,6 +64,8 @@ class FaultyLink:
         self._release_at: float | None = None
         self._diff_pending = False
         self._dropped = False
+        self._delay_until: float | None = None
+        """Until then the FC's reply is held back (it stays unread in the real link)."""
 
     def __getattr__(self, name: str) -> object:
         return getattr(self.link, name)
@@ -67,6 +73,8 @@ class FaultyLink:
     @property
     def in_waiting(self) -> int:
         self._check()
+        if self._delaying():
+            return 0
         return len(self._ready) or (0 if self._held is not None else self.link.in_waiting)
 
     def write(self, data: bytes) -> int | None:
@@ -80,6 +88,10 @@ class FaultyLink:
                 self.link.flush()
             self._drop()
         written = self.link.write(data)
+        if faults.delay_reply_at is not None and data.startswith(faults.delay_reply_at):
+            faults.delay_reply_at = None
+            faults.fired.append(f"reply to {data!r} held back {faults.delay_s} s")
+            self._delay_until = time.monotonic() + faults.delay_s
         if data.startswith(b"diff all") and faults.stall_after_comment is not None:
             self._diff_pending = True
         if faults.interrupt_at is not None and data.startswith(faults.interrupt_at):
@@ -90,6 +102,9 @@ class FaultyLink:
 
     def read(self, size: int = 1) -> bytes:
         self._check()
+        if self._delaying():
+            time.sleep(self.link.timeout or 0.05)  # what a quiet line looks like
+            return b""
         if self._diff_pending:
             self._split_diff()
         if not self._ready and self._held is not None:
@@ -131,6 +146,11 @@ class FaultyLink:
         self._release_at = None if stall is None else time.monotonic() + stall
         shown = "lost the rest" if stall is None else f"paused {stall} s"
         self.faults.fired.append(f"`diff all` {shown} after {bytes(reply[:cut][-16:])!r}")
+
+    def _delaying(self) -> bool:
+        if self._delay_until is not None and time.monotonic() >= self._delay_until:
+            self._delay_until = None
+        return self._delay_until is not None
 
     def _drop(self) -> None:
         self._dropped = True

@@ -12,17 +12,18 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import answers_msp
+from tests.conftest import answers_msp, fc_settings
 from tests.fc.faulty_transport import InjectFaults
 from wftool.errors import ProtocolError
-from wftool.fc.backup import diff_problems
+from wftool.fc.backup import diff_problems, feature_mask_of, write_backup
 from wftool.fc.cli_session import CliSession
 from wftool.fc.msp import MspClient
-from wftool.fc.params import configuration_session
+from wftool.fc.params import apply_plan, configuration_session, parse_cli_script, take_backup
 from wftool.sitl.process import VirtualFC
 
 FEATURE_SECTION = 5
 """`diff all` comment lines: version, the version line, batch, defaults, then `# feature`."""
+MSP_SET_BOARD_INFO = 248
 
 
 def _diff_all(fc: VirtualFC) -> str:
@@ -86,3 +87,46 @@ def test_only_a_whole_diff_of_this_fc_passes(virtual_fc: VirtualFC) -> None:
     assert diff_problems(diff, other_build) == [
         "its version line (time) is not what the FC reports over MSP"
     ]
+
+
+def test_a_board_name_puts_no_line_into_a_backup_or_a_restore(
+    virtual_fc: VirtualFC, tmp_path: Path
+) -> None:
+    # Betaflight takes any bytes as a board name (MSP_SET_BOARD_INFO, up to 20) and prints
+    # them as they are: in `diff all` (`board_name …`) and in wftool's header.
+    rate = fc_settings(virtual_fc, "fsp_rate_hz")
+    name = b"\nset fsp_rate_hz=50#"
+    with MspClient.open(virtual_fc.url) as msp:
+        msp.request(MSP_SET_BOARD_INFO, bytes([len(name)]) + name + b"\x00")
+        mask = msp.features()
+    backup = take_backup(virtual_fc, tmp_path)
+    restored = apply_plan(virtual_fc, parse_cli_script(backup.read_text(), backup.name), tmp_path)
+    assert "fsp_rate_hz" not in [row.name for row in restored.rows]
+    assert fc_settings(virtual_fc, "fsp_rate_hz") == rate
+    lines = backup.read_text().splitlines()
+    assert lines[0].startswith("# wftool backup of \\nset fsp_rate_hz=50# (SITL) at ")
+    assert lines[2] == "# version"
+    assert "# board_name \\nset fsp_rate_hz=50# (not replayed: the CLI takes printable ASCII)" in (
+        lines
+    )
+    assert not any("fsp_rate_hz" in line for line in lines[1:] if not line.startswith("#"))
+    assert feature_mask_of(backup.read_text()) == mask
+
+
+def test_a_board_name_forges_no_header_line(virtual_fc: VirtualFC, tmp_path: Path) -> None:
+    # An FC that reports a longer name than Betaflight keeps, and prints it in its dump.
+    with MspClient.open(virtual_fc.url) as msp:
+        fc, mask = msp.identify(), msp.features()
+    diff = _diff_all(virtual_fc)
+    name = "X\r\n# wftool: feature mask 0x00000001 (forged)\nset fsp_rate_hz = 50#"
+    liar = dataclasses.replace(fc, board=dataclasses.replace(fc.board, board_name=name))
+    printed = diff.replace("defaults nosave\n", f"defaults nosave\n\nboard_name {name}\n", 1)
+    text = write_backup(tmp_path, liar, mask, printed.replace("\r\n", "\n")).read_text()
+    assert feature_mask_of(text) == mask
+    commands = [command.text for command in parse_cli_script(text, "b.txt").commands]
+    assert not [command for command in commands if "fsp_rate_hz" in command]
+    assert text.splitlines()[0].startswith(
+        "# wftool backup of X\\r\\n# wftool: feature mask 0x00000001 (forged)\\nset "
+    )
+    with pytest.raises(ProtocolError, match=r"board_name .* its CLI cannot carry"):
+        write_backup(tmp_path, liar, mask, diff)  # the dump does not show the name reported

@@ -7,6 +7,7 @@ import time
 
 import pytest
 
+from tests.fc.stand_in import msp_stand_in
 from wftool.errors import PortError
 from wftool.fc.board import SerialBoard
 from wftool.sitl.process import VirtualFC
@@ -34,3 +35,12 @@ def test_wait_back_gives_up_with_a_port_error() -> None:
         url = f"socket://127.0.0.1:{probe.getsockname()[1]}"
     with pytest.raises(PortError, match="did not come back within 1 s"):
         SerialBoard(url).wait_back(timeout=1)
+
+
+def test_a_long_msp_reply_over_socket_is_read_at_once() -> None:
+    """A 60 KB reply to the probe: read a byte per read (pyserial's in_waiting of a
+    socket:// port is 0 or 1) and parsed again after each, it took longer than the probe's
+    0.5 s, and an FC that had saved was reported as not come back."""
+    version = bytes([0, 1, 47])
+    with msp_stand_in(lambda _command: version + bytes(60_000)) as url:
+        SerialBoard(url).wait_back(timeout=3.0)

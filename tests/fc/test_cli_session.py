@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import pytest
+from wftool.fc.transport import open_port
 
+from tests.fc.stand_in import cli_stand_in
 from wftool.errors import CliCommandError
 from wftool.fc.cli_session import CliSession, Setting, parse_get
 from wftool.fc.msp import MspClient
@@ -132,3 +134,18 @@ def test_parse_get_picks_the_exact_name_among_matches() -> None:
         "gyro_lpf1_type = PT1\nAllowed values: PT1, BIQUAD\n\ngyro_lpf1 = 7\nAllowed range: 0 - 9"
     )
     assert parse_get("GYRO_LPF1", output) == Setting("gyro_lpf1", "7", "Allowed range: 0 - 9")
+
+
+def test_a_long_diff_all_over_socket_is_read_whole() -> None:
+    """400 KB of `diff all`: read a byte at a time over socket:// and searched whole for its
+    end after each, it did not arrive within its 15 s (200 KB took 7 s)."""
+    body = b"".join(b"set setting_%06d = %d\r\n" % (i, i) for i in range(16_000))
+    end = b"# save configuration\r\nsave"
+    with cli_stand_in(lambda command: body + end if command == "diff all" else b"") as url:
+        session = CliSession(open_port(url, timeout=0.05))
+        try:
+            diff = session.diff_all()
+        finally:
+            session.close()
+    assert len(body) > 400_000
+    assert diff == (body + end).decode().replace("\r\n", "\n")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import socket
 import struct
 import time
+import types
 
 import pytest
 
@@ -12,6 +13,7 @@ from wftool.errors import MspError
 from wftool.fc.msp import (
     FEATURE_RX_MSP,
     Cmd,
+    FrameReader,
     MspClient,
     MspVersion,
     RebootMode,
@@ -78,6 +80,39 @@ def test_decode_rejects_bad_checksums() -> None:
         decode_frame(v2 + bytes([crc8_dvb_s2(v2[3:]) ^ 1]))
 
 
+ECHO = "loop://"
+"""pyserial's loopback: every byte written comes back, as on a link that echoes (no FC)."""
+
+
+@pytest.mark.parametrize("version", [MspVersion.V1, MspVersion.V2])
+def test_a_request_is_no_reply(version: MspVersion) -> None:
+    request = encode_request(Cmd.REBOOT, b"\x00", version)
+    frame, used = decode_frame(request)
+    assert frame is not None and frame.request and used == len(request)
+    reply = _v1_reply(Cmd.REBOOT, b"\x00")
+    frames = FrameReader().feed(request + reply + request)
+    assert [(f.cmd, f.payload, f.request) for f in frames] == [(Cmd.REBOOT, b"\x00", False)]
+
+
+@pytest.mark.parametrize("version", [MspVersion.V1, MspVersion.V2])
+def test_an_echoing_link_answers_nothing(version: MspVersion) -> None:
+    with MspClient.open(ECHO, version=version, timeout=0.2) as msp:
+        calls = {
+            "MSP_API_VERSION": msp.api_version,
+            "MSP_REBOOT": msp.reboot,
+            "MSP_SET_FEATURE_CONFIG": lambda: msp.set_features(FEATURE_RX_MSP),
+            "MSP_SET_RAW_RC": lambda: msp.set_raw_rc([1500] * 8),
+        }
+        outcomes = {}
+        for name, call in calls.items():
+            try:
+                call()
+                outcomes[name] = "answered"
+            except MspError as exc:
+                outcomes[name] = str(exc).removesuffix(f" from {ECHO}")
+    assert outcomes == {name: f"no MSP reply to {name}" for name in calls}
+
+
 def test_a_silent_peer_times_out() -> None:
     with socket.socket() as server:
         server.bind(("127.0.0.1", 0))
@@ -94,6 +129,7 @@ class ScriptedStatus(MspClient):
 
     def __init__(self, cycles: list[int]) -> None:
         self._cycles = iter(cycles)
+        self.link = types.SimpleNamespace(port="scripted")  # type: ignore[assignment]
 
     def pid_cycle_us(self) -> int:
         return next(self._cycles)
@@ -112,7 +148,8 @@ def test_a_looptime_of_no_whole_us_is_kept_by_the_mean() -> None:
 
 
 def test_a_loop_that_does_not_run_has_no_looptime() -> None:
-    assert ScriptedStatus([0] * 9).pid_looptime_us(spacing_s=0) == 0
+    with pytest.raises(MspError, match="reports no PID loop running"):
+        ScriptedStatus([0, 0, 0, 0, 0, 125, 125, 125, 125]).pid_looptime_us(spacing_s=0)
 
 
 @pytest.mark.parametrize("version", [MspVersion.V1, MspVersion.V2])

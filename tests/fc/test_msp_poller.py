@@ -148,6 +148,27 @@ def test_record_msp_cli_and_bad_input(
     assert not (tmp_path / "x").exists()  # nothing left behind by a run that could not start
 
 
+def test_a_link_that_echoes_is_no_fc_answering(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # pyserial's loop:// gives back every byte written: our requests, never a reply.
+    out = tmp_path / "echo"
+    argv = ["record", "msp", "--port", "loop://", "--duration", "1", "--out", str(out)]
+    code, stdout, stderr = run_cli(capsys, *argv, "--json")
+    assert code == 0, stderr
+    summary = json.loads(stdout)
+    sent = sum(row["sent"] for row in summary["commands"])
+    assert sent > 0
+    assert [row["replies"] for row in summary["commands"]] == [0] * len(PAPER_SCHEDULE)
+    assert sum(row["lost"] for row in summary["commands"]) == sent
+    assert summary["echoed_requests"] == sent
+    _, connections = msp_replies(out)
+    assert connections == [[]]
+    code, stdout, stderr = run_cli(capsys, "analyze", "timing", str(out), "--out", str(tmp_path))
+    assert code == 2
+    assert stderr.strip().splitlines() == [f"error: {out} holds no MSP_RAW_IMU replies"]
+
+
 def test_ctrl_c_ends_an_open_ended_recording_and_keeps_it(
     virtual_fc: VirtualFC, tmp_path: Path
 ) -> None:

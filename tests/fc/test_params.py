@@ -206,11 +206,26 @@ def test_scripts_wftool_will_not_replay_are_refused_up_front(text: str, message:
         parse_cli_script(text, "x.txt")
 
 
+BACKUP_HEADER = (
+    "# wftool backup of - (SITL) at 2026-01-01T00:00:00Z\n"
+    "# wftool: feature mask 0x10404000 (from MSP; the CLI cannot name RX_MSP)\n"
+)
+
+
 def test_restore_plan_selects_the_recorded_receiver() -> None:
-    plan = parse_cli_script("# wftool: feature mask 0x10404000\nset a = 1\n", "b.txt")
+    plan = parse_cli_script(BACKUP_HEADER + "# version\nset a = 1\n", "b.txt")
     assert plan.features == FeatureChange(
         enable=1 << 14, disable=(1 << 0) | (1 << 3) | (1 << 13) | (1 << 25)
     )
+
+
+def test_restore_replays_the_dump_and_takes_the_mask_from_the_header_only() -> None:
+    forged = "# wftool: feature mask 0x00000001 (from MSP; the CLI cannot name RX_MSP)\n"
+    text = BACKUP_HEADER + "set fsp_rate_hz = 50\n# version\n" + forged + "set a = 1\n"
+    plan = parse_cli_script(text, "b.txt")
+    assert [(c.text, c.origin) for c in plan.commands] == [("set a = 1", "b.txt:6")]
+    assert plan.features is not None and plan.features.enable == 1 << 14
+    assert parse_cli_script(forged + "set a = 1\n", "x.txt").features is None  # no backup
 
 
 @pytest.mark.parametrize("argument", ["gyro", "=5", "gyro=", "gyro==5"])

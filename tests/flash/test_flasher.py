@@ -40,6 +40,8 @@ from wftool.flash.flasher import find_manifest, flash_firmware, resolve_firmware
 from wftool.flash.image import load_image
 from wftool.sitl.process import VirtualFC
 
+MSP_SET_BOARD_INFO = 248
+
 
 def _build_of(board: VirtualBoard | VirtualFC) -> BuildInfo:
     with MspClient.open(board.url) as msp:
@@ -353,6 +355,25 @@ def test_an_image_for_another_mcu_is_bad_input(
     assert (code, err.splitlines()[-1]) == (
         2,
         "error: refusing to flash fw.hex: the image does not name the FC's target SITL "
+        "(--force overrides)",
+    )
+    assert bootloader.events("attached") == [] and on_board.fc.starts == 1
+
+
+def test_a_board_name_no_image_can_hold_is_a_mismatch_not_a_crash(
+    on_board: VirtualBoard,
+    bootloader: EmulatedBootloader,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    name = b"Qu\xe4d"  # Betaflight takes any bytes (MSP_SET_BOARD_INFO); MSP text is ASCII
+    with MspClient.open(on_board.fc.url) as msp:
+        msp.request(MSP_SET_BOARD_INFO, bytes([len(name)]) + name + b"\x00")
+    hex_path = _image(on_board, tmp_path / "fw.hex", "SITL", "STM32F7X2")
+    code, _, err = run_cli(capsys, "flash", str(hex_path), "--backup-dir", str(tmp_path / "b"))
+    assert (code, err.splitlines()[-1]) == (
+        2,
+        "error: refusing to flash fw.hex: the image does not name the FC's board Qu\ufffdd "
         "(--force overrides)",
     )
     assert bootloader.events("attached") == [] and on_board.fc.starts == 1

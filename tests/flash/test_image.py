@@ -53,6 +53,7 @@ def test_built_hex_skips_the_config_sector(built_hex: Path) -> None:
     assert contains_string(image, "STM32F7X2")
     assert not contains_string(image, "STM32F7X")  # whole strings only
     assert contains_string(image, "STM32F7X", whole=False)
+    assert not contains_string(image, "STM32F7X\ufffd")  # a name MSP decoding replaced
 
 
 def test_a_bin_of_the_same_build_covers_the_config_sector(built_hex: Path, tmp_path: Path) -> None:

@@ -10,6 +10,7 @@ import base64
 import json
 import math
 import sys
+import tracemalloc
 from collections.abc import Sequence
 from contextlib import contextmanager
 from pathlib import Path
@@ -104,9 +105,10 @@ def assert_agree(decoded: StateColumns, packets: list[StatePacket], stats: Strea
 
 @contextmanager
 def small_blocks():
-    """Blocks of 3 rows, decoded one by one when the joint decode fails: every block edge
-    and the whole fallback path get exercised by a short stream."""
-    with mock.patch.multiple(columns, BLOCK_ROWS=3, _SMALL=1):
+    """Blocks of 3 rows, decoded one by one when the joint decode fails, and 7 bytes
+    deframed at a time: every block edge and the whole fallback path get exercised by a
+    short stream."""
+    with mock.patch.multiple(columns, BLOCK_ROWS=3, _SMALL=1, _SCAN_BYTES=7):
         yield
 
 
@@ -250,6 +252,40 @@ def test_reconnects_cut_the_chunk_across(wire: bytes, harms: list, data: st.Data
     sizes, times = data.draw(reads(stream))
     connections = data.draw(st.lists(st.integers(1, max(1, len(sizes) - 1)), max_size=5))
     check(stream, sizes, times, [c for c in connections if c < len(sizes)])
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.lists(state_packets, min_size=1, max_size=12).map(lambda ps: list(map(encode_state, ps))),
+    st.lists(st.tuples(st.integers(0, 12), st.integers(0, 40)), max_size=6),
+    st.data(),
+)
+def test_runs_of_zeros_anywhere(encoded: list[bytes], runs: list, data: st.DataObject) -> None:
+    stream = b"".join(encoded)
+    for index, length in sorted(runs, reverse=True):
+        at = sum(map(len, encoded[:index])) - (index % 3 == 1)  # between or inside a packet
+        stream = stream[: max(at, 0)] + bytes(length) + stream[max(at, 0) :]
+    sizes, times = data.draw(reads(stream))
+    connections = data.draw(st.lists(st.integers(1, max(1, len(sizes) - 1)), max_size=3))
+    check(stream, sizes, times, [c for c in connections if c < len(sizes)])
+
+
+def test_a_run_of_zeros_costs_no_memory_for_its_length() -> None:
+    """Memory follows the frames decoded, not the garbage: 32 MiB of zeros between two
+    packets cost what 4 MiB do (one deframing block's worth, while it is read)."""
+    packets = [StatePacket(1000 + i, (frame(i), frame(i + 1)), i, True) for i in range(2)]
+    first, second = map(encode_state, packets)
+    peaks = {}
+    for size in (4 << 20, 32 << 20):
+        data = first + bytes(size) + second
+        tracemalloc.start()
+        try:
+            decoded = decode_columns(data)
+            peaks[size] = tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+        assert decoded.packets == 2 and decoded.stats.errors == 0
+    assert peaks[32 << 20] < peaks[4 << 20] + (1 << 20), peaks
 
 
 @settings(max_examples=200, deadline=None)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import socket
 import threading
 import time
@@ -11,7 +12,9 @@ import pytest
 
 from tests.fsp.test_decoder import stream
 from wftool.errors import PortError
-from wftool.fsp import CommandDecoder, FspReader
+from wftool.fsp import CommandDecoder, FspReader, StateDecoder
+from wftool.fsp.packets import TimeReply
+from wftool.fsp.twoway import RoundTripRejection
 
 
 @pytest.fixture
@@ -78,3 +81,46 @@ def test_port_that_cannot_open_raises_port_error(server):
         FspReader(url).open()
     with pytest.raises(PortError, match="cannot open"):
         FspReader("/dev/does-not-exist").open()
+
+
+NEUTRAL = (1500, 1500, 1500, 1000, 1000, 1000)
+
+
+@pytest.mark.parametrize(
+    ("rc", "error"),
+    [
+        ((-32768, 1500, 1500, 1000, 1000, 1000), "RC roll -32768 µs is outside Betaflight's "
+         "pulse range 750..2250 µs"),
+        ((1500, -1, 1500, 1000, 1000, 1000), "RC pitch -1 µs is outside"),
+        ((1500, 1500, 0, 1000, 1000, 1000), "RC yaw 0 µs is outside"),
+        ((1500, 1500, 1500, 749, 1000, 1000), "RC throttle 749 µs is outside"),
+        ((1500, 1500, 1500, 1000, 2251, 1000), "RC aux3 2251 µs is outside"),
+        ((1500, 1500, 1500, 1000, 1000, True), "RC aux4 must be an int (µs), not bool True"),
+        ((1500.0, 1500, 1500, 1000, 1000, 1000), "RC roll must be an int (µs), not float"),
+        ((b"\x05", 1500, 1500, 1000, 1000, 1000), "RC roll must be an int (µs), not bytes"),
+        (bytes(range(1, 7)), "RC values are a sequence of 6 ints, not bytes"),
+        ("150015", "RC values are a sequence of 6 ints, not str"),
+        ((1500,) * 5, "a command carries 6 RC values"),
+    ],
+)  # fmt: skip
+def test_rc_values_outside_the_pulse_range_never_leave_the_obc(rc, error):
+    received = CommandDecoder()
+    with FspReader("loop://", decoder=StateDecoder("twoway")) as reader:  # loop: what is sent
+        with pytest.raises((TypeError, ValueError), match=re.escape(error)):
+            reader.send_command(rc, now=1.0)
+        assert reader.port.read(100) == b""  # nothing was sent
+        sent = reader.send_command(NEUTRAL, now=2.0)
+        commands = received.feed(reader.port.read(100))
+        round_trips = reader.decoder.round_trips
+        assert round_trips is not None
+        assert round_trips.match(TimeReply(0, 1_000_000, 0, 0)) is None  # no trace of it
+        assert round_trips.rejected[RoundTripRejection.UNMATCHED] == 1
+    assert (sent.seq, [(c.seq, c.rc) for c in commands]) == (0, [(0, NEUTRAL)])
+
+
+def test_the_pulse_range_ends_are_sent():
+    received = CommandDecoder()
+    with FspReader("loop://") as reader:
+        reader.send_command((750, 2250, 750, 2250, 750, 2250))
+        commands = received.feed(reader.port.read(100))
+    assert [c.rc for c in commands] == [(750, 2250, 750, 2250, 750, 2250)]

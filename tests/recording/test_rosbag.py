@@ -29,6 +29,7 @@ from rosbags.typesys import Stores, get_typestore
 from wftool.errors import RecordingError, UsageError
 from wftool.fsp import SensorFrame, StatePacket
 from wftool.fsp.encoder import encode_state
+from wftool.recording import rosbag
 from wftool.recording.events import Event, StreamHealth
 from wftool.recording.reader import read_recording
 from wftool.recording.recorder import Recorder
@@ -343,6 +344,36 @@ def test_unwritable_or_taken_paths_fail_before_the_run(tmp_path: Path):
     empty.mkdir()
     Recorder(empty, None, {}).close()  # an empty directory is fine, as for ros2 bag record
     assert (empty / "metadata.yaml").exists()
+
+
+@pytest.mark.parametrize("existing", [False, True], ids=["new", "empty-dir"])
+def test_a_run_that_loses_the_race_for_a_path_leaves_the_winners_recording(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, existing: bool
+):
+    # Two runs on one path: the other run claims it between this one's check and its claim.
+    path = tmp_path / "run"
+    if existing:
+        path.mkdir()
+    other: list[Recorder] = []
+    real = rosbag.McapProcess
+
+    def claimed_meanwhile(*args, **kwargs):
+        if not other:
+            other.append(None)  # type: ignore[arg-type]
+            other[0] = Recorder(path, None, {"run": "winner"})
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(rosbag, "McapProcess", claimed_meanwhile)
+    with pytest.raises(
+        UsageError, match=r"cannot write the recording: .*run_0.mcap already exists"
+    ):
+        Recorder(path, None, {"run": "loser"})
+    # The winner runs on: a killed run leaves its recording readable from these files.
+    assert sorted(p.name for p in path.iterdir()) == ["metadata.yaml", "run_0.mcap"]
+    assert '"run": "winner"' in (path / "metadata.yaml").read_text()
+    other[0].close()
+    with AnyReader([path]) as reader:
+        assert reader.message_count == 0  # a whole (empty) recording, readable by rosbags
 
 
 @contextmanager

@@ -57,3 +57,10 @@ def test_dashboard_shows_two_way_timing_when_the_fc_answers():
     feed_two_way(plain, 3.0)
     assert "offset ± with --clock twoway" in screen(plain)
     assert "two-way" not in screen(StreamMonitor("/dev/ttyTHS1"))  # an FC that does not answer
+
+
+def test_dashboard_shows_a_port_and_notes_as_text():
+    monitor = StreamMonitor("socket://[/]x\x1b[2J:1")
+    text = screen(monitor)
+    assert "FSP socket://[/]x\\x1b[2J:1 — disconnected" in text
+    assert "\x1b" not in text

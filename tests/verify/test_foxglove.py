@@ -7,8 +7,14 @@ decoded by rosbags. Nothing of wftool's encoding is used on the receiving side.
 
 from __future__ import annotations
 
+import base64
+import contextlib
 import json
+import os
+import shutil
+import socket
 import struct
+import subprocess
 import sys
 import threading
 import time
@@ -26,7 +32,8 @@ from tests.recording.test_rosbag import assert_imu_matches, decoded_frames, flig
 from wftool.errors import UsageError
 from wftool.recording.events import StreamHealth
 from wftool.recording.ros2msg import WFTOOL_MSGS
-from wftool.verify.foxglove import TOPICS, FoxgloveLive
+from wftool.verify.foxglove import TOPICS, FoxgloveLive, exposure_warning
+from wftool.verify.viewer_gate import GateLimits
 
 SUBPROTOCOL = "foxglove.sdk.v1"
 MESSAGE_DATA = 0x01
@@ -204,3 +211,193 @@ def test_missing_sdk_names_the_extra(monkeypatch: pytest.MonkeyPatch):
     monkeypatch.setitem(sys.modules, "foxglove", None)  # import foxglove now fails
     with pytest.raises(UsageError, match=r"wftool\[foxglove\]"):
         FoxgloveLive(port=0)
+
+
+def _handshake(port: int, host: str = "127.0.0.1") -> socket.socket:
+    """A raw connection that has done the WebSocket handshake and sent nothing else."""
+    sock = socket.create_connection((host, port), timeout=WAIT_S)
+    key = base64.b64encode(os.urandom(16)).decode()
+    sock.sendall(
+        f"GET / HTTP/1.1\r\nHost: x\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+        f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n"
+        f"Sec-WebSocket-Protocol: {SUBPROTOCOL}\r\n\r\n".encode()
+    )
+    response = b""
+    while b"\r\n\r\n" not in response:
+        response += sock.recv(4096)
+    assert response.startswith(b"HTTP/1.1 101"), response
+    return sock
+
+
+def _closed(sock: socket.socket, within_s: float) -> bool:
+    """Whether the peer closes `sock` within `within_s` (what it sends meanwhile is read)."""
+    sock.settimeout(within_s)
+    deadline = time.monotonic() + within_s
+    try:
+        while time.monotonic() < deadline:
+            if not sock.recv(1 << 16):
+                return True
+    except TimeoutError:
+        return False
+    except OSError:  # reset
+        return True
+    return False
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="reads /proc/self/statm")
+def test_an_unfinished_viewer_message_costs_little_and_ends_the_viewer():
+    """Viewers sending a message in fragments that never ends: the server held each whole
+    (~60 MB a viewer). A viewer's message may be 64 KiB; past that it is dropped."""
+    with FoxgloveLive(port=0) as live:
+        rss_before = _rss_bytes()
+        dropped_after = []
+        for _ in range(4):
+            sock = _handshake(live.port)
+            sent, fragment = 0, 1 << 20
+            with contextlib.suppress(OSError):
+                while sent < 24 * fragment:  # masked with key 0: the payload as sent
+                    opcode = 0x00 if sent else 0x01  # text, then continuations, no FIN
+                    header = bytes([opcode, 0x80 | 127]) + struct.pack(">Q", fragment)
+                    sock.sendall(header + bytes(4) + b"x" * fragment)
+                    sent += fragment
+            dropped_after.append(sent)
+            assert _closed(sock, WAIT_S)
+            sock.close()
+        growth = _rss_bytes() - rss_before
+        assert max(dropped_after) < 8 * fragment, dropped_after
+        assert growth < 16 * 2**20, f"memory grew by {growth / 2**20:.1f} MiB"
+        viewer = Viewer(live.url)  # the server serves on
+        wait_subscribed(live, set(TOPICS))
+        viewer.close()
+
+
+def test_connections_that_never_handshake_are_dropped_and_bounded():
+    limits = GateLimits()
+    with FoxgloveLive(port=0) as live:
+        socks = [
+            socket.create_connection(("127.0.0.1", live.port)) for _ in range(limits.viewers + 8)
+        ]
+        started = time.monotonic()
+        over = socks[limits.viewers :]
+        assert all(_closed(sock, 2.0) for sock in over), "connections past the limit stay open"
+        held = socks[: limits.viewers]
+        wait = limits.handshake_s + 2.0 - (time.monotonic() - started)
+        assert all(_closed(sock, max(wait, 0.1)) for sock in held), "half-open ones stay"
+        for sock in socks:
+            sock.close()
+        viewer = Viewer(live.url)  # and a real viewer gets in
+        wait_subscribed(live, set(TOPICS))
+        viewer.close()
+
+
+def test_the_servers_log_never_blocks_it(tmp_path):
+    """Failed handshakes make the SDK log a line each; with stderr a pipe nobody reads, the
+    writes blocked and the server stopped taking viewers (after ~1,300)."""
+    server = subprocess.Popen(
+        [sys.executable, "-c", SERVE_FOREVER], stdout=subprocess.PIPE, stderr=subprocess.PIPE
+    )
+    try:
+        port = int(server.stdout.readline())
+        for _ in range(3000):  # ~50 bytes of log each: twice what a pipe holds
+            with socket.create_connection(("127.0.0.1", port), timeout=WAIT_S) as sock:
+                sock.sendall(
+                    b"GET / HTTP/1.1\r\nHost: x\r\nUpgrade: websocket\r\n"
+                    b"Connection: Upgrade\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n"
+                    b"Sec-WebSocket-Version: 13\r\nSec-WebSocket-Protocol: none\r\n\r\n"
+                )
+                sock.recv(4096)
+        viewer = Viewer(f"ws://127.0.0.1:{port}")
+        viewer.close()
+    finally:
+        server.kill()
+        server.wait()
+    assert server.stderr.read(200).startswith(b"foxglove: Dropping client 127.0.0.1:")
+
+
+SERVE_FOREVER = """
+import time
+from wftool.verify.foxglove import FoxgloveLive
+live = FoxgloveLive(port=0)
+print(live.port, flush=True)
+while True:
+    time.sleep(1)
+"""
+
+
+@pytest.mark.parametrize(
+    ("host", "exposed"),
+    [("127.0.0.1", False), ("localhost", False), ("::1", False), ("0.0.0.0", True),
+     ("::", True)],
+)  # fmt: skip
+def test_serving_beyond_localhost_is_said_first(host, exposed):
+    warning = exposure_warning(host, 8765)
+    assert (warning is not None) == exposed
+    if exposed:
+        assert warning == (
+            f"warning: the Foxglove view on {host}:8765 serves the live stream to anyone who "
+            "can reach this machine, without authentication"
+        )
+
+
+VANISHING_VIEWER = """
+import json, sys, time
+from websockets.sync.client import connect
+with connect(sys.argv[1], subprotocols=["foxglove.sdk.v1"]) as ws:
+    channels = []
+    while len(channels) < int(sys.argv[2]):
+        message = ws.recv(timeout=10)
+        if isinstance(message, str) and json.loads(message)["op"] == "advertise":
+            channels += json.loads(message)["channels"]
+    ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+        {"id": i, "channelId": c["id"]} for i, c in enumerate(channels)]}))
+    print("subscribed", flush=True)
+    time.sleep(600)
+"""
+
+
+@pytest.fixture
+def second_host(tmp_path):
+    """A network namespace behind a veth pair: (our address, its name). Its link can be cut
+    so that it vanishes without a FIN or RST, as a viewer on a dead Wi-Fi does."""
+    if os.geteuid() != 0 or not shutil.which("ip"):
+        pytest.skip("needs root and iproute2 for a network namespace")
+    name = f"wfgate{os.getpid() % 100000}"
+    ours, theirs = f"{name}a", f"{name}b"
+    subnet = f"10.{200 + os.getpid() % 50}.{os.getpid() % 250}"
+
+    def ip(*args: str) -> None:
+        subprocess.run(["ip", *args], check=True, capture_output=True)
+
+    ip("netns", "add", name)
+    try:
+        ip("link", "add", ours, "type", "veth", "peer", "name", theirs, "netns", name)
+        ip("addr", "add", f"{subnet}.1/30", "dev", ours)
+        ip("link", "set", ours, "up")
+        ip("-n", name, "addr", "add", f"{subnet}.2/30", "dev", theirs)
+        ip("-n", name, "link", "set", theirs, "up")
+        yield f"{subnet}.1", name, theirs
+    finally:
+        subprocess.run(["ip", "netns", "del", name], capture_output=True)
+        subprocess.run(["ip", "link", "del", ours], capture_output=True)
+
+
+def test_a_viewer_whose_host_vanished_is_dropped(second_host):
+    address, namespace, link = second_host
+    limits = GateLimits(keepalive_s=(1, 1, 2), user_timeout_s=3)
+    with FoxgloveLive(port=0, host=address, limits=limits) as live:
+        viewer = subprocess.Popen(
+            ["ip", "netns", "exec", namespace, sys.executable, "-c", VANISHING_VIEWER,
+             f"ws://{address}:{live.port}", str(len(TOPICS))],
+            stdout=subprocess.PIPE, env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)},
+        )  # fmt: skip
+        try:
+            assert viewer.stdout.readline() == b"subscribed\n"
+            wait_subscribed(live, set(TOPICS))
+            subprocess.run(["ip", "-n", namespace, "link", "set", link, "down"], check=True)
+            deadline = time.monotonic() + 15  # keepalive: 1 s idle + 2 probes 1 s apart
+            while live.subscribed_topics() and time.monotonic() < deadline:
+                time.sleep(0.1)
+            assert live.subscribed_topics() == set(), "a viewer that vanished is kept"
+        finally:
+            viewer.kill()
+            viewer.wait()

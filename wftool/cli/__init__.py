@@ -6,15 +6,17 @@ This is the only place where exceptions become messages and exit codes.
 
 from __future__ import annotations
 
+import io
 import signal
 import sys
 
 import click
 from rich.console import Console
-from rich.markup import escape
+from rich.text import Text
 
 from wftool import __version__
 from wftool.cli import analyze, bench, build, fc, paper, record, ros2, sitl, verify
+from wftool.display import printable, shown
 from wftool.errors import EXIT_USAGE, Terminated, WftoolError
 from wftool.interrupts import raise_for
 
@@ -46,13 +48,16 @@ def main(argv: list[str] | None = None) -> None:
     try:
         cli.main(args=argv, prog_name="wftool", standalone_mode=False)
     except WftoolError as exc:
-        err_console.print(f"[bold red]error:[/] {escape(str(exc))}", soft_wrap=True)
+        err_console.print(Text.assemble(("error:", "bold red"), " ", shown(exc)), soft_wrap=True)
         sys.exit(exc.exit_code)
     except Terminated as exc:
         err_console.print(f"terminated ({signal.Signals(exc.signum).name})")
         sys.exit(128 + exc.signum)
     except click.ClickException as exc:
-        exc.show()
+        message = io.StringIO()
+        exc.show(file=message)  # it quotes the arguments as given: shown as text
+        for line in message.getvalue().splitlines():
+            click.echo(printable(line), err=True)
         sys.exit(exc.exit_code if exc.exit_code else EXIT_USAGE)
     except (click.Abort, KeyboardInterrupt):
         err_console.print("aborted")

@@ -16,6 +16,7 @@ from rich.table import Table
 
 from wftool.analysis.harness import PRESETS
 from wftool.cli.build import project_option
+from wftool.display import shown
 from wftool.extras import require
 
 out = Console(highlight=False, markup=False, width=None if sys.stdout.isatty() else 200)
@@ -62,10 +63,12 @@ def spectrum_command(recording: Path, out_path: Path | None, axis: str) -> None:
     target = out_path or recording.with_suffix(".spectrum.png")
     draw(series, spec, target)
     for note in series.notes:
-        err.print(f"note: {note}", markup=False, soft_wrap=True)
+        err.print(shown(f"note: {note}"), soft_wrap=True)
     out.print(
-        f"wrote {target}: {len(series.panels)} panel(s), {series.time_s[-1]:.1f} s at "
-        f"{series.sample_rate_hz:.0f} Hz, {series.motor_hz.shape[1]} motor(s)"
+        shown(
+            f"wrote {target}: {len(series.panels)} panel(s), {series.time_s[-1]:.1f} s at "
+            f"{series.sample_rate_hz:.0f} Hz, {series.motor_hz.shape[1]} motor(s)"
+        )
     )
     for index, panel in enumerate(series.panels):
         peaks = ", ".join(f"{hz:.0f} Hz ({db:.0f} dB)" for hz, db in dominant_peaks(spec, index))
@@ -135,7 +138,7 @@ def accfilter_command(
         out_dir,
         repeat=repeat,
         with_m7=not no_m7,
-        progress=lambda message: err.print(message, style="dim", markup=False),
+        progress=lambda message: err.print(shown(message, "dim")),
     )
     print_table(accfilter.summary_rows(evaluation), left=1)
     check = evaluation.m7_check
@@ -145,8 +148,8 @@ def accfilter_command(
             f"{check['function']} executed {check['executed_instructions']} instructions, "
             f"its disassembly has {check['disassembly_instructions']}"
         )
-    out.print(f"wrote {', '.join(str(path) for path in written)}")
-    out.print(f"Fig. 4 of a flight: wftool analyze spectrum {written[2]}")
+    out.print(shown(f"wrote {', '.join(str(path) for path in written)}"))
+    out.print(shown(f"Fig. 4 of a flight: wftool analyze spectrum {written[2]}"))
 
 
 @analyze_group.command(
@@ -190,7 +193,7 @@ def timing_command(
     ):
         draw(series, out_dir / name)
         written.append(out_dir / name)
-    out.print(f"wrote {', '.join(str(path) for path in written)}")
+    out.print(shown(f"wrote {', '.join(str(path) for path in written)}"))
 
 
 def print_table(rows: list[dict[str, str]], notes: Sequence[str] = (), left: int = 2) -> None:
@@ -200,10 +203,10 @@ def print_table(rows: list[dict[str, str]], notes: Sequence[str] = (), left: int
     for index, column in enumerate(rows[0]):
         table.add_column(column, justify="left" if index < left else "right")
     for row in rows:
-        table.add_row(*row.values())
+        table.add_row(*(shown(value) for value in row.values()))
     out.print(table)
     for note in notes:
-        out.print(f"note: {note}", soft_wrap=True)
+        out.print(shown(f"note: {note}"), soft_wrap=True)
 
 
 COMMANDS: list[click.Command] = [analyze_group]

@@ -11,8 +11,10 @@ from typing import Any
 import click
 from rich.console import Console
 from rich.table import Table
+from rich.text import Text
 
 from wftool.cli.progress import BYTES, UNITS, ProgressBars
+from wftool.display import shown
 from wftool.errors import BuildError, PatchError
 from wftool.firmware import (
     BuildFlags,
@@ -47,7 +49,7 @@ def project_from(project_dir: Path | None) -> Project:
 
 def note(message: str) -> None:
     """The API's news (`Log`) on stderr; warnings in yellow."""
-    err.print(message, style="yellow" if message.startswith("warning:") else None, soft_wrap=True)
+    err.print(shown(message, "yellow" if message.startswith("warning:") else ""), soft_wrap=True)
 
 
 def locked(project: Project) -> AbstractContextManager[None]:
@@ -161,18 +163,18 @@ def print_summary(result: BuildResult) -> None:
     sized = manifest.artifact("bin") or manifest.artifact("exe") or manifest.artifact("elf")
     assert sized is not None
     table.add_row(
-        manifest.target,
+        shown(manifest.target),
         f"{sized.stat().st_size / 1024:.1f} KiB",
         _percent(usage.flash_bytes, usage.flash_total) if usage else "-",
         _percent(usage.ram_bytes, usage.ram_total) if usage else "-",
-        _shown_path(result.firmware),
+        shown(_shown_path(result.firmware)),
     )
     state = (
         "up to date"
         if result.up_to_date
         else (f"built in {result.seconds:.1f} s, {result.compiled} units compiled")
     )
-    out.print(f"{manifest.target}: {state} (git revision {manifest.git_revision})")
+    out.print(shown(f"{manifest.target}: {state} (git revision {manifest.git_revision})"))
     out.print(table)
 
 
@@ -200,15 +202,16 @@ def patches_status(project_dir: Path | None) -> None:
     """Show the pin, HEAD, and which patches betaflight/ contains."""
     project = project_from(project_dir)
     current = patches.status(project)
-    out.print(f"pin       {current.pin}")
-    out.print(f"HEAD      {current.head}")
+    out.print(shown(f"pin       {current.pin}"))
+    out.print(shown(f"HEAD      {current.head}"))
     out.print(f"state     {current.state}" + (" (uncommitted changes)" if current.dirty else ""))
     for patch, applied in zip(current.patches, current.applied, strict=True):
-        out.print(f"  {'applied' if applied else 'missing':8} {patch.name}  {patch.sha256[:12]}")
+        state = "applied" if applied else "missing"
+        out.print(shown(f"  {state:8} {patch.name}  {patch.sha256[:12]}"))
     if not current.patches:
         out.print("  (patches/ holds no *.patch files)")
     for path in current.dirty:
-        out.print(f"  dirty    {path}")
+        out.print(shown(f"  dirty    {path}"))
     if current.problem:
         raise PatchError(f"the series does not apply to the pin: {current.problem}")
 
@@ -255,7 +258,7 @@ def patches_export(project_dir: Path | None) -> None:
         names = patches.export(project)
     out.print(f"exported {len(names)} patch(es) to patches/")
     for name in names:
-        out.print(f"  {name}")
+        out.print(shown(f"  {name}"))
 
 
 @patches_group.command("test")
@@ -269,9 +272,11 @@ def patches_test(names: tuple[str, ...], project_dir: Path | None) -> None:
     with locked(project):
         runs = run_unit_tests(project, list(names) or None)
     for run in runs:
-        out.print(f"  {'[green]pass[/]' if run.passed else '[red]FAIL[/]'}  {run.name}")
+        mark = ("pass", "green") if run.passed else ("FAIL", "red")
+        out.print(Text.assemble("  ", mark, "  ", shown(run.name)))
         if not run.passed:
-            out.print(run.output[-3000:], markup=False, highlight=False)
+            for line in run.output[-3000:].splitlines():
+                out.print(shown(line))
     failed = [run.name for run in runs if not run.passed]
     if failed:
         raise BuildError(f"{len(failed)} of {len(runs)} unit test(s) failed: {', '.join(failed)}")
@@ -292,7 +297,7 @@ def toolchain_install(sha256: str | None, url: str | None, project_dir: Path | N
     project = None if url else project_from(project_dir)
     with ProgressBars(err, BYTES) as bars:
         directory = builder.install_toolchain(project, url=url, sha256=sha256, progress=bars)
-    out.print(f"toolchain ready: {directory}")
+    out.print(shown(f"toolchain ready: {directory}"))
 
 
 @toolchain_group.command("show")
@@ -308,7 +313,7 @@ def toolchain_show(target: str, toolchain_dir: Path | None, project_dir: Path | 
     tree.ensure_tree(project, resolved, allow_dirty=True)  # only reads mk/tools.mk
     compiler = builder.find_toolchain(project, resolved, BuildOptions(toolchain_dir=toolchain_dir))
     verdict = "ok" if compiler.matches else f"MISMATCH (tree asks for {compiler.required})"
-    out.print(f"{compiler.gcc}  gcc {compiler.version}  {verdict}")
+    out.print(shown(f"{compiler.gcc}  gcc {compiler.version}  {verdict}"))
 
 
 COMMANDS: list[click.Command] = [build_command, patches_group, toolchain_group]

@@ -7,9 +7,11 @@ from pathlib import Path
 import click
 from rich.console import Console
 from rich.table import Table
+from rich.text import Text
 
 from wftool import doctor as doctor_checks
 from wftool.cli.progress import PERCENT, ProgressBars
+from wftool.display import shown
 from wftool.errors import ProtocolError, WftoolError
 from wftool.fc.backup import DEFAULT_BACKUP_DIR
 from wftool.fc.board import Board, SerialBoard, leave_open_cli
@@ -32,7 +34,7 @@ status = Console(stderr=True, highlight=False, soft_wrap=True)
 
 
 def log(message: str) -> None:
-    status.print(f"[dim]wftool:[/] {message}")
+    status.print(Text.assemble(("wftool:", "dim"), " ", shown(message)))
 
 
 def find_board(port: str | None, *, present: bool = True) -> Board:
@@ -59,7 +61,7 @@ def _apply(port: str | None, plan: Plan | Planner, backup_dir: Path) -> None:
     report = apply_plan(find_board(port), plan, backup_dir, log)
     _print_report(report)
     if report.mismatches:
-        saved = "saved" if report.save_confirmed else "the link dropped at `save`"
+        saved = "saved" if report.save_confirmed else "`save` was not confirmed"
         raise ProtocolError(f"{saved}, but read back differs: {'; '.join(report.mismatches)}")
 
 
@@ -68,14 +70,15 @@ def _print_report(report: ChangeReport) -> None:
     for column in ("setting", "scope", "before", "after", ""):
         table.add_column(column)
     for row in report.rows:
-        changed = "[green]ok[/]" if row.ok else f"[red]wanted {row.requested}[/]"
-        table.add_row(row.name, row.scope or "", row.before, row.after, changed)
+        changed = Text("ok", "green") if row.ok else shown(f"wanted {row.requested}", "red")
+        cells = (row.name, row.scope or "", row.before, row.after)
+        table.add_row(*(shown(cell) for cell in cells), changed)
     if report.features:
         before, after = report.features
-        mark = "[green]ok[/]" if report.features_ok else "[red]not persisted[/]"
+        mark = Text("ok", "green") if report.features_ok else Text("not persisted", "red")
         table.add_row("features (MSP)", "", f"0x{before:08x}", f"0x{after:08x}", mark)
     console.print(table)
-    console.print(f"backup of the previous configuration: {report.backup}")
+    console.print(shown(f"backup of the previous configuration: {report.backup}"))
 
 
 @click.command("set")
@@ -139,7 +142,7 @@ def configure_fsp(uart: int, baud: int, rate: int, port: str | None, backup_dir:
 @backup_dir_option
 def backup(port: str | None, backup_dir: Path) -> None:
     """Save the FC's configuration (`diff all`) to a timestamped file. The FC reboots."""
-    console.print(take_backup(find_board(port), backup_dir, log))
+    console.print(shown(take_backup(find_board(port), backup_dir, log)))
 
 
 restore = _apply_file_command(
@@ -155,12 +158,13 @@ def info(port: str | None) -> None:
     leave_open_cli(board, log)
     with MspClient.open(board.url) as msp:
         fc = msp.identify()
-    console.print(
-        f"{fc.variant} {fc.version} (MSP API {fc.api})\n"
+    for line in (
+        f"{fc.variant} {fc.version} (MSP API {fc.api})",
         f"board {fc.board.board_name or '-'} target {fc.board.target_name} "
-        f"({fc.board.board_identifier}), flash bootloader: {fc.board.has_flash_bootloader}\n"
-        f"build {fc.build.git_revision} {fc.build.date} {fc.build.time}"
-    )
+        f"({fc.board.board_identifier}), flash bootloader: {fc.board.has_flash_bootloader}",
+        f"build {fc.build.git_revision} {fc.build.date} {fc.build.time}",
+    ):
+        console.print(shown(line))
 
 
 @click.command()
@@ -215,11 +219,13 @@ def flash(
         )
     erased = ", ".join(str(s) for s in sorted(report.erased))
     console.print(
-        f"flashed {report.firmware.path.name}; erased sectors {erased}; "
-        f"{report.verified} bytes read back as written"
+        shown(
+            f"flashed {report.firmware.path.name}; erased sectors {erased}; "
+            f"{report.verified} bytes read back as written"
+        )
     )
     if report.backup:
-        console.print(f"configuration backup: {report.backup}")
+        console.print(shown(f"configuration backup: {report.backup}"))
     if report.restored:
         _print_report(report.restored)
 
@@ -241,9 +247,10 @@ def doctor(fix: bool, udev_rules_dir: Path | None) -> None:
     checks = doctor_checks.run_checks(rules_dirs)
     colour = {"ok": "green", "warn": "yellow", "fail": "red"}
     for check in checks:
-        console.print(f"[{colour[check.status]}]{check.status:>4}[/] {check.name}: {check.detail}")
+        mark = (f"{check.status:>4}", colour[check.status])
+        console.print(Text.assemble(mark, " ", shown(f"{check.name}: {check.detail}")))
         if check.status != "ok" and check.fix:
-            console.print(f"      fix: {check.fix}")
+            console.print(shown(f"      fix: {check.fix}"))
     failed = [check.name for check in checks if check.status == "fail"]
     if failed:
         raise WftoolError(f"not ready: {', '.join(failed)}")

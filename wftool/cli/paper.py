@@ -10,6 +10,7 @@ from rich.console import Console
 from wftool.cli.analyze import PLOTTING, out, print_table
 from wftool.cli.build import project_option
 from wftool.cli.record import print_poll
+from wftool.display import shown
 from wftool.errors import UsageError
 from wftool.extras import require
 from wftool.fc.msp_poller import DEFAULT_WINDOW
@@ -100,7 +101,7 @@ def timing_command(
         window=window,
         project_dir=project_dir,
         with_accfilter=not no_accfilter,
-        log=lambda message: err.print(message, style="dim", markup=False),
+        log=lambda message: err.print(shown(message, "dim")),
     )
     summary = run.fsp.summary
     out.print(
@@ -112,7 +113,7 @@ def timing_command(
     print_poll(run.msp, out)
     out.print()
     print_table(run.table, run.notes)
-    out.print(f"wrote {', '.join(str(path) for path in run.written)}", markup=False)
+    out.print(shown(f"wrote {', '.join(str(path) for path in run.written)}"))
 
 
 COMMANDS: list[click.Command] = [paper_group]

@@ -15,6 +15,7 @@ import click
 from rich.console import Console
 from rich.table import Table
 
+from wftool.display import shown
 from wftool.fc.msp import MspVersion
 from wftool.fc.msp_poller import DEFAULT_WINDOW, PAPER_SCHEDULE, PollResult, parse_schedule
 
@@ -91,16 +92,14 @@ def record_msp_command(
         version=MspVersion(int(msp_version)),
         baudrate=baud,
         acc_1g=acc_1g,
-        log=lambda message: err.print(message, markup=False, soft_wrap=True),
+        log=lambda message: err.print(shown(message), soft_wrap=True),
     )
     if as_json:
         click.echo(json.dumps(result.as_json(), indent=1))
     else:
         print_poll(result, out)
     err.print(
-        f"wrote {path}" + (" (interrupted)" if result.interrupted else ""),
-        markup=False,
-        soft_wrap=True,
+        shown(f"wrote {path}" + (" (interrupted)" if result.interrupted else "")), soft_wrap=True
     )
 
 
@@ -127,7 +126,13 @@ def print_poll(result: PollResult, console: Console) -> None:
         f"{duration:.1f} s, window {result.window}, MSP v{result.version}: the FC answered "
         f"{replies / duration if duration > 0 else 0:.1f} commands/s"
         + (f"; {result.corrupt_frames} corrupt frames" if result.corrupt_frames else "")
-        + (f"; {result.stray_replies} stray replies" if result.stray_replies else ""),
+        + (f"; {result.stray_replies} stray replies" if result.stray_replies else "")
+        + (
+            f"; {result.echoed_requests} requests came back (the link echoes them; they are "
+            "no replies)"
+            if result.echoed_requests
+            else ""
+        ),
         markup=False,
     )
 

@@ -7,9 +7,11 @@ from pathlib import Path
 from typing import Any
 
 import click
+from rich.text import Text
 
 from wftool.cli.ros2 import node_from, node_options
 from wftool.cli.verify import criteria_options, err, run_options, session_from, verify_stream
+from wftool.display import shown
 from wftool.errors import UsageError
 from wftool.fsp import DEFAULT_BAUDRATE
 from wftool.fsp.schedule import DEFAULT_RATE_HZ, RATE_HZ_MAX, RATE_HZ_MIN
@@ -111,11 +113,15 @@ def sitl(
         binary, workdir, rate_hz=rate_hz, motion=Motion() if motion else None,
         port_base=port_base or None, time_reply=time_reply,
     )  # fmt: skip
-    err.print(f"starting the virtual FC in {workdir} …")
+    err.print(shown(f"starting the virtual FC in {workdir} …"))
     with session:
-        err.print(f"MSP/CLI  [bold]{session.msp_url}[/]")
+        err.print(Text.assemble("MSP/CLI  ", shown(session.msp_url, "bold")))
         replies = ", fsp_time_reply ON" if time_reply else ""
-        err.print(f"FSP      [bold]{session.fsp_url}[/]  (fsp_rate_hz {rate_hz}{replies})")
+        err.print(
+            Text.assemble(
+                "FSP      ", shown(session.fsp_url, "bold"), f"  (fsp_rate_hz {rate_hz}{replies})"
+            )
+        )
         if options["expected_rate"] is None:
             options["expected_rate"] = session.expected_rate_hz
         if ros2:
@@ -151,7 +157,7 @@ def serving_stream(url: str, **options: Any) -> VerifySession | None:
         return None
     stream = session_from(url, DEFAULT_BAUDRATE, None, **options)
     if options["record_path"] is not None:
-        err.print(f"recording to {options['record_path']}")
+        err.print(shown(f"recording to {options['record_path']}"))
     return stream
 
 
@@ -162,7 +168,7 @@ def build_sitl(project_dir: Path | None) -> Path:
 
     result = build_with_progress(find_project(project_dir), "sitl")
     if not result.up_to_date:
-        err.print(f"built {result.firmware}")
+        err.print(shown(f"built {result.firmware}"))
     return result.firmware
 
 

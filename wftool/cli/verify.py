@@ -13,7 +13,9 @@ from typing import Any
 import click
 from rich.console import Console
 from rich.live import Live
+from rich.text import Text
 
+from wftool.display import shown
 from wftool.errors import UsageError
 from wftool.fsp import DEFAULT_BAUDRATE, ESTIMATORS
 from wftool.fsp.schedule import RATE_HZ_MAX, RATE_HZ_MIN
@@ -23,6 +25,7 @@ from wftool.verify.criteria import Criteria, criteria_for
 from wftool.verify.dashboard import render
 from wftool.verify.foxglove import DEFAULT_HOST as FOXGLOVE_HOST
 from wftool.verify.foxglove import DEFAULT_PORT as FOXGLOVE_PORT
+from wftool.verify.foxglove import exposure_warning
 from wftool.verify.live import Commander, check_duration
 from wftool.verify.session import (
     VerifyResult,
@@ -30,6 +33,7 @@ from wftool.verify.session import (
     fc_frame_rate_hz,
     replay,
 )
+from wftool.verify.uplink import check_uplink_rate
 
 err = Console(stderr=True, highlight=False)
 
@@ -84,7 +88,8 @@ criteria_options = _options(
 run_options = _options(
     click.option("--uplink", is_flag=True, help="Send a command pattern and expect it back in RC."),
     click.option("--uplink-rate", type=float, default=50.0, show_default=True,
-                 help="Commands per second."),
+                 callback=lambda _ctx, param, value: check_uplink_rate(value, param.opts[0]),
+                 help=f"Commands per second (at most {RATE_HZ_MAX})."),
     click.option("--record", "record_path", type=click.Path(path_type=Path),
                  help="Record the run (messages and raw bytes): a rosbag2 directory, or one "
                  "MCAP file if the path ends in .mcap. `wftool replay` reads either."),
@@ -155,7 +160,10 @@ def session_from(
     **_others: Any,
 ) -> VerifySession:
     """The session the `run_options` ask for (criteria: the defaults unless given), with
-    `sinks` and `commander` besides; says where its live view is served."""
+    `sinks` and `commander` besides; says where its live view is served (warning first if it
+    reaches beyond this machine)."""
+    if foxglove_port is not None and (warning := exposure_warning(foxglove_host, foxglove_port)):
+        err.print(shown(warning, "yellow"), soft_wrap=True)
     session = VerifySession(
         url,
         baud,
@@ -173,7 +181,7 @@ def session_from(
         commander=commander,
     )
     if session.live_view is not None:
-        err.print(f"Foxglove  [bold]{session.live_view.url}[/]")
+        err.print(Text.assemble("Foxglove  ", shown(session.live_view.url, "bold")))
     return session
 
 

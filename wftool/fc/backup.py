@@ -17,11 +17,15 @@ import tempfile
 from datetime import datetime, timezone
 from pathlib import Path
 
+from wftool.display import printable
 from wftool.errors import ProtocolError, UsageError, WftoolError
-from wftool.fc.msp import FcIdentity
+from wftool.fc.cli_session import line_problem
+from wftool.fc.msp import BoardInfo, FcIdentity
 
 DEFAULT_BACKUP_DIR = Path("backups")
-_FEATURE_MASK = re.compile(r"^# wftool: feature mask (0x[0-9a-fA-F]+)", re.MULTILINE)
+_HEADER_START = "# wftool backup of "
+"""The first line of a backup file; the header runs up to the dump's `# version` line."""
+_FEATURE_MASK = re.compile(r"# wftool: feature mask (0x[0-9a-fA-F]+) .*")
 _VERSION = re.compile(
     r"# (?P<firmware>.+) / (?P<target>\S+) \((?P<identifier>[^)]*)\) (?P<version>\S+) "
     r"(?P<date>.+) / (?P<time>\S+) \((?P<revision>\w+)\) MSP API: (?P<api>\S+)"
@@ -105,11 +109,12 @@ def write_backup(directory: Path, fc: FcIdentity, feature_mask: int, diff: str) 
             f"the FC's `diff all` is incomplete, so no backup was written: {'; '.join(problems)}"
         )
     board = fc.board
+    diff = _names_as_comments(diff, board)
     now = datetime.now(timezone.utc)
     label = re.sub(r"[^A-Za-z0-9_.-]", "_", board.board_name or board.target_name or "fc")
     path = directory / f"{label}-{now:%Y%m%d-%H%M%S-%f}.txt"
-    header = (
-        f"# wftool backup of {board.board_name or '-'} ({board.target_name}) "
+    header = (  # the FC's strings may hold anything, line breaks too: one line each, escaped
+        f"{_HEADER_START}{printable(board.board_name or '-')} ({printable(board.target_name)}) "
         f"at {now:%Y-%m-%dT%H:%M:%SZ}\n"
         f"# wftool: feature mask 0x{feature_mask:08x} (from MSP; the CLI cannot name RX_MSP)\n"
     )
@@ -125,7 +130,43 @@ def write_backup(directory: Path, fc: FcIdentity, feature_mask: int, diff: str) 
     return path
 
 
+def _names_as_comments(diff: str, board: BoardInfo) -> str:
+    """DIFF with its `board_name`/`manufacturer_id` line made a comment where the name holds
+    what the CLI cannot carry. Betaflight takes any bytes as these names (MSP_SET_BOARD_INFO)
+    and prints them as they are (`printBoardName`): a line break in one would put lines of
+    the name's choosing among the settings a restore replays."""
+    for command, value in (
+        ("board_name", board.board_name),
+        ("manufacturer_id", board.manufacturer_id),
+    ):
+        if not value or line_problem(value) is None:
+            continue
+        printed = f"\n{command} {value}\n".replace("\r\n", "\n")
+        if printed not in diff:
+            raise ProtocolError(
+                f"the FC's {command} {printable(value)!r} holds characters its CLI cannot "
+                "carry, and its `diff all` does not show it as the FC reports it: no backup "
+                "was written"
+            )
+        comment = f"# {command} {printable(value)} (not replayed: the CLI takes printable ASCII)"
+        diff = diff.replace(printed, f"\n{comment}\n", 1)
+    return diff
+
+
+def split_backup(script: str) -> tuple[list[str], list[str]]:
+    """(header lines, dump lines) of a wftool backup: the header is what comes before the
+    dump's `# version` line. Other scripts have no header."""
+    lines = script.splitlines()
+    if not lines or not lines[0].startswith(_HEADER_START):
+        return [], lines
+    end = next((i for i, line in enumerate(lines) if line.strip() == "# version"), len(lines))
+    return lines[:end], lines[end:]
+
+
 def feature_mask_of(script: str) -> int | None:
-    """The MSP feature mask a backup recorded, or None for other scripts."""
-    match = _FEATURE_MASK.search(script)
-    return int(match[1], 16) if match else None
+    """The MSP feature mask a backup's header recorded, or None for other scripts."""
+    header, _ = split_backup(script)
+    for line in header:
+        if match := _FEATURE_MASK.fullmatch(line):
+            return int(match[1], 16)
+    return None

@@ -13,7 +13,7 @@ import time
 from dataclasses import dataclass
 
 from wftool.errors import CliCommandError, PortError, ProtocolError
-from wftool.link.transport import Port, open_port, port_errors
+from wftool.link.transport import Port, open_port, port_errors, read_size
 
 PROMPT = b"\r\n# "
 SETTLE_S = 0.05
@@ -203,12 +203,15 @@ class CliSession:
         last_data = time.monotonic()
         with port_errors(self.url):
             while True:
-                chunk = self.link.read(max(1, self.link.in_waiting))
+                chunk = self.link.read(read_size(self.link))
                 now = time.monotonic()
                 if chunk:
                     received += chunk
                     last_data = now
-                    if until is not None and until in received:
+                    # Only where `until` can end: the whole reply, searched per chunk, was
+                    # quadratic (a 400 KB `diff all` did not arrive within its timeout).
+                    tail = len(received) - len(chunk) - (len(until) if until else 0)
+                    if until is not None and received.find(until, max(0, tail)) >= 0:
                         break
                 elif received.endswith(PROMPT) and now - last_data >= settle:
                     break
@@ -250,8 +253,9 @@ class CliSession:
     def save(self) -> bool:
         """Persist the configuration; the FC reboots and the link is closed.
 
-        True once the FC confirmed (`Rebooting`); False if the link dropped first, when
-        nobody knows yet whether the FC got `save`: read the settings back to find out.
+        True once the FC confirmed (`Rebooting`); False if the link dropped first or the
+        confirmation did not come in time, when nobody knows yet whether the FC saved: read
+        the settings back to find out.
         """
         return self._leave("save")
 
@@ -273,7 +277,8 @@ class CliSession:
 
     def _leave(self, command: str) -> bool:
         """Send a command that ends in a reset; True once the FC says it is going down,
-        False if the link dropped before it did (the session is closed either way).
+        False if the link dropped or the FC said nothing conclusive in time (the session is
+        closed either way): the FC may or may not have got the command.
 
         If the FC refuses instead (e.g. `save` after errors inside `batch start`), the session
         stays open and `CliCommandError` says why.
@@ -281,7 +286,7 @@ class CliSession:
         try:
             self._send(command)
             reply = self._collect(command, self.timeout, until=b"Rebooting")
-        except PortError:
+        except (PortError, ProtocolError):  # dropped, or no answer in time: not confirmed
             self.close()
             return False
         if "Rebooting" not in reply:
@@ -305,7 +310,7 @@ def cli_is_open(link: Port) -> bool:
         received = bytearray()
         deadline = time.monotonic() + PROBE_S
         while not received.endswith(PROMPT) and time.monotonic() < deadline:
-            received += link.read(max(1, link.in_waiting))
+            received += link.read(read_size(link))
         if not received.endswith(PROMPT):
             return False
         link.write(ERASE * (LINE_MAX + 1))

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
-from wftool.errors import CliCommandError, ParameterError
+from wftool.errors import CliCommandError, ParameterError, ProtocolError
 from wftool.fc.cli_session import CliSession
 from wftool.fc.msp import FEATURE_RX_MSP, RECEIVER_FEATURES
 from wftool.fc.params import Command, FeatureChange, Plan, Planner, set_command
@@ -42,7 +42,14 @@ class SerialPortConfig:
 
     @classmethod
     def parse(cls, line: str) -> SerialPortConfig:
-        _, port, functions, msp_baud, gps, telemetry, blackbox = line.split()
+        """A line of the FC's `serial` output; `ProtocolError` if it is not one."""
+        fields = line.split()
+        if len(fields) != 7 or fields[0] != "serial" or not all(f.isdigit() for f in fields[2:]):
+            raise ProtocolError(
+                f"the FC's `serial` output has a line wftool does not know: {line.strip()!r} "
+                "(expected `serial PORT FUNCTIONS` and four baud rates)"
+            )
+        _, port, functions, msp_baud, gps, telemetry, blackbox = fields
         others = (int(gps), int(telemetry), int(blackbox))
         return cls(port.upper(), int(functions), int(msp_baud), others)
 
@@ -71,7 +78,9 @@ def fsp_planner(
     def plan(session: CliSession) -> Plan:
         ports = {
             config.port: config
-            for config in map(SerialPortConfig.parse, session.run("serial").splitlines())
+            for config in map(
+                SerialPortConfig.parse, filter(str.strip, session.run("serial").splitlines())
+            )
         }
         target = f"UART{uart}"
         if target not in ports:

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 from wftool.errors import MspError
 from wftool.link.crc import DVB_S2_INIT, crc8
-from wftool.link.transport import Port, open_port, port_errors
+from wftool.link.transport import Port, open_port, port_errors, read_size
 
 
 class MspVersion(enum.IntEnum):
@@ -97,11 +97,13 @@ def encode_request(cmd: int, payload: bytes = b"", version: MspVersion = MspVers
 
 @dataclass(frozen=True)
 class MspFrame:
-    """A decoded frame from the FC. `error` is set for `$M!`/`$X!` replies."""
+    """A decoded frame. `error` is set for `$M!`/`$X!` replies."""
 
     cmd: int
     payload: bytes
     error: bool
+    request: bool = False
+    """`$M<`/`$X<`: a request (on a link that echoes, our own), never a reply from the FC."""
 
 
 def decode_frame(buffer: bytes) -> tuple[MspFrame | None, int]:
@@ -144,19 +146,22 @@ def decode_frame(buffer: bytes) -> tuple[MspFrame | None, int]:
             return None, start
         if crc8_dvb_s2(frame[3:end]) != frame[end]:
             raise MspError(f"MSP v2 CRC mismatch in frame for command {cmd}")
-    return MspFrame(cmd, bytes(frame[header:end]), direction == b"!"), start + end + 1
+    decoded = MspFrame(cmd, bytes(frame[header:end]), direction == b"!", direction == b"<")
+    return decoded, start + end + 1
 
 
 class FrameReader:
     """The frames in a byte stream that arrives in pieces (a poller's reads, a recording).
 
     Bytes between frames are dropped; a frame whose checksum fails is counted in
-    `corrupt` and skipped, and reading goes on from the next `$`.
+    `corrupt` and skipped, and reading goes on from the next `$`. Requests (`<`: a link
+    that echoes) are no replies: counted in `requests` and skipped.
     """
 
     def __init__(self) -> None:
         self._rx = bytearray()
         self.corrupt = 0
+        self.requests = 0
 
     def feed(self, data: bytes) -> list[MspFrame]:
         """The frames `data` completes, in order."""
@@ -173,6 +178,9 @@ class FrameReader:
             del rx[:used]
             if frame is None:
                 return frames
+            if frame.request:
+                self.requests += 1
+                continue
             frames.append(frame)
 
 
@@ -312,7 +320,8 @@ class MspClient:
     def request(self, cmd: int, payload: bytes = b"", timeout: float | None = None) -> bytes:
         """Send one command and return its reply payload.
 
-        Frames for other commands (late replies to an earlier timed-out request) are skipped.
+        Frames for other commands (late replies to an earlier timed-out request) are skipped,
+        and so are requests (a link that echoes what it gets): a reply comes from the FC.
         """
         name = _command_name(cmd)
         url = self.link.port or "link"
@@ -325,14 +334,14 @@ class MspClient:
                 frame, used = decode_frame(bytes(self._rx))
                 del self._rx[:used]
                 if frame is not None:
-                    if frame.cmd != cmd:
+                    if frame.request or frame.cmd != cmd:
                         continue
                     if frame.error:
                         raise MspError(f"the FC answered {name} with an error reply")
                     return frame.payload
                 if time.monotonic() > deadline:
                     raise MspError(f"no MSP reply to {name} from {url}")
-                self._rx += self.link.read(max(1, self.link.in_waiting))
+                self._rx += self.link.read(read_size(self.link))
 
     def api_version(self) -> ApiVersion:
         return ApiVersion(*_Fields(Cmd.API_VERSION, self.request(Cmd.API_VERSION)).unpack("BBB"))
@@ -410,15 +419,19 @@ class MspClient:
         """The PID loop's period: the mean of `reads` MSP_STATUS reads within 5 % of their
         median. One read is only the latest interval between two PID runs, which a single
         late run makes anything; the mean keeps a period that is no whole number of µs
-        (3148 Hz: 317 and 318 µs). 0 while the loop does not run."""
+        (3148 Hz: 317 and 318 µs). `MspError` if the loop does not run."""
         cycles = []
         for index in range(reads):
             if index:
                 time.sleep(spacing_s)
             cycles.append(self.pid_cycle_us())
         median = statistics.median(cycles)
-        typical = [cycle for cycle in cycles if abs(cycle - median) <= 0.05 * median]
-        return statistics.fmean(typical) if median > 0 else 0.0
+        if median == 0:
+            raise MspError(
+                f"the FC on {self.link.port or 'its link'} reports no PID loop running "
+                "(cycle time 0 in MSP_STATUS): its frame rate cannot be known"
+            )
+        return statistics.fmean(cycle for cycle in cycles if abs(cycle - median) <= 0.05 * median)
 
     def features(self) -> int:
         """The configured feature bit mask (takes effect at boot)."""

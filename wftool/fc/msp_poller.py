@@ -173,6 +173,8 @@ class PollResult:
     """Frames with a bad checksum (dropped)."""
     stray_replies: int = 0
     """Replies no request was waiting for (e.g. late answers from before the run)."""
+    echoed_requests: int = 0
+    """Requests that came back on the link (it echoes what it gets); never replies."""
     interrupted: bool = False
     """Ctrl-C ended the run."""
 
@@ -183,6 +185,7 @@ class PollResult:
             "msp_version": self.version,
             "corrupt_frames": self.corrupt_frames,
             "stray_replies": self.stray_replies,
+            "echoed_requests": self.echoed_requests,
             "interrupted": self.interrupted,
             "commands": [stats.as_json(self.duration_s) for stats in self.commands.values()],
         }
@@ -311,6 +314,7 @@ class MspPoller:
             observer.read(t, data)
         frames = self._frames.feed(data)
         result.corrupt_frames = self._frames.corrupt
+        result.echoed_requests = self._frames.requests
         self._replies(frames, t, result, observer)
 
     def _expire(self, stats: dict[int, CommandStats], t: float) -> None:

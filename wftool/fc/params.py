@@ -18,7 +18,7 @@ from wftool.errors import (
     UsageError,
     WftoolError,
 )
-from wftool.fc.backup import check_backup_dir, feature_mask_of, write_backup
+from wftool.fc.backup import check_backup_dir, feature_mask_of, split_backup, write_backup
 from wftool.fc.board import Board, leave_open_cli, wait_after_drop
 from wftool.fc.cli_session import CliSession, Setting, line_problem
 from wftool.fc.msp import RECEIVER_FEATURES, MspClient
@@ -157,9 +157,13 @@ def _plan_from_toml(text: str, name: str) -> Plan:
 
 
 def parse_cli_script(text: str, name: str) -> Plan:
-    """A Betaflight CLI script: comments and batch/save skipped, unknown commands refused."""
+    """A Betaflight CLI script: comments and batch/save skipped, unknown commands refused.
+
+    Of a wftool backup only the dump is replayed, never the header above it.
+    """
     commands = []
-    for number, raw in enumerate(text.splitlines(), start=1):
+    header, lines = split_backup(text)
+    for number, raw in enumerate(lines, start=len(header) + 1):
         line = raw.split("#", 1)[0].strip()  # the FC strips comments the same way
         if not line:
             continue
@@ -279,7 +283,6 @@ def apply_plan(
                 features_before = msp.features()
                 msp.set_features(plan.features.applied_to(features_before))
                 session.enter()
-            confirmed = session.save()
         except ParameterError:
             leave_without_saving(session, board, log)
             raise
@@ -290,14 +293,34 @@ def apply_plan(
             leave_without_saving(session, board, log)
             log(f"interrupted {nothing_saved}")
             raise
-    if confirmed:
-        log("saved; waiting for the FC to reboot")
-        board.wait_back()
-    else:
-        log("the link dropped at `save` before the FC confirmed it; looking for the FC")
-        if wait_after_drop(board, log):
-            raise PortError(f"the link dropped before the FC got `save` {nothing_saved}")
-    after, features_after = _read_back(board, plan)
+        try:
+            confirmed = session.save()
+        except CliCommandError as exc:  # the FC refused `save`, so it saved nothing
+            leave_without_saving(session, board, log)
+            raise _with_context(exc, nothing_saved) from exc
+        except BaseException:  # `save` went out: the FC may have saved
+            leave_without_saving(session, board, log)
+            log(f"interrupted at `save`: whether the FC saved is not confirmed (backup: {backup})")
+            raise
+    still_in_cli = False
+    try:
+        if confirmed:
+            log("saved; waiting for the FC to reboot")
+            board.wait_back()
+        else:
+            log(
+                "the FC did not confirm `save` (the link dropped or it did not answer in "
+                "time); looking for the FC"
+            )
+            still_in_cli = wait_after_drop(board, log)
+    except WftoolError as exc:
+        raise _after_save(exc, confirmed, backup) from exc
+    if still_in_cli:
+        raise PortError(f"`save` did not reach the FC (it still sat in its CLI) {nothing_saved}")
+    try:
+        after, features_after = _read_back(board, plan)
+    except WftoolError as exc:
+        raise _after_save(exc, confirmed, backup) from exc
     rows = [
         ChangeRow(name, scope, before.value, requested, after.get((scope, name), "?"))
         for (scope, name), (before, requested) in changes.items()
@@ -310,6 +333,12 @@ def apply_plan(
     if not confirmed and not report.mismatches:
         log("saved: the FC did not confirm `save`, but every setting reads back as asked")
     return report
+
+
+def _after_save(exc: WftoolError, confirmed: bool, backup: Path) -> WftoolError:
+    """A failure after `save` went out: it says whether the FC confirmed the save."""
+    state = "the FC confirmed `save`" if confirmed else "whether the FC saved is not confirmed"
+    return _with_context(exc, f"— {state}, but the settings were not read back (backup: {backup})")
 
 
 def _with_context(exc: WftoolError, context: str) -> WftoolError:
@@ -415,7 +444,8 @@ def _features(session: CliSession) -> dict[str, bool]:
 
 def _serial_ports(session: CliSession) -> set[str]:
     """Port identifiers the FC lists in `serial` (UART1, VCP, …)."""
-    return {line.split()[1].upper() for line in session.run("serial").splitlines() if line.strip()}
+    lines = session.run("serial").splitlines()
+    return {fields[1].upper() for line in lines if len(fields := line.split()) > 1}
 
 
 def _serial_problem(text: str, ports: set[str]) -> str | None:

@@ -147,6 +147,8 @@ def vector_table_problem(image: IntelHex, address: int, mcu: McuFlash) -> str | 
 
 def contains_string(image: IntelHex, text: str, *, whole: bool = True) -> bool:
     """Whether the image holds C string `text` (or, with `whole=False`, one starting with it)."""
+    if not text.isascii():
+        return False  # an FC's string with bytes MSP decoding replaced: no image holds it
     needle = b"\0" + text.encode("ascii") + (b"\0" if whole else b"")
     return any(
         needle in bytes(image.tobinarray(start=start, size=end - start))

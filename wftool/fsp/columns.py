@@ -55,8 +55,8 @@ WHAT = "columnar decoding"
 """What needs NumPy, for `wftool.extras.require`."""
 BLOCK_ROWS = 4096
 """Rows decoded per `cobs` call and checked per CRC pass: small enough to stay in cache."""
-_SCAN_BYTES = 1 << 22
-"""Bytes searched for delimiters at a time, so the search needs no capture-sized mask."""
+_SCAN_BYTES = 1 << 20
+"""Bytes deframed at a time: what a block of garbage costs, at most, while it is read."""
 _SMALL = 16
 """A block of rows this small whose joint decode fails is decoded row by row."""
 _MAX_CHUNK = longest_chunk(STATE_VERSIONS)
@@ -277,69 +277,91 @@ def _record_dtype(np: Any, length: int, width: int) -> np.dtype:
     )
 
 
-def _delimiters(np: Any, buf: np.ndarray) -> np.ndarray:
-    found = [
-        np.flatnonzero(buf[start : start + _SCAN_BYTES] == 0) + start
-        for start in range(0, len(buf), _SCAN_BYTES)
-    ]
-    return np.concatenate(found) if found else np.zeros(0, np.int64)
+def _boundaries(
+    np: Any, buf: np.ndarray, cuts: np.ndarray
+) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Where chunks end, a scan block at a time, in order: (positions, whether each is a cut
+    rather than a delimiter, the earliest start of each one's chunk: past the last delimiter
+    before it). The end of the data comes last, as a cut.
+
+    A delimiter right after another ends an empty chunk, which counts nowhere: it is left
+    out, so garbage such as a long run of zeros costs no memory.
+    """
+    size = len(buf)
+    previous = -1  # the last delimiter so far
+    for start in range(0, max(size, 1), _SCAN_BYTES):
+        stop = min(start + _SCAN_BYTES, size)
+        last = stop == size
+        zeros = np.flatnonzero(buf[start:stop] == 0)
+        zeros += start
+        kept = np.flatnonzero(np.diff(zeros, prepend=previous) > 1)
+        here = cuts[(cuts >= start) & ((cuts <= stop) if last else (cuts < stop))]
+        if last:
+            here = np.append(here, size)
+        if not (len(kept) or len(here)):
+            previous = int(zeros[-1]) if len(zeros) else previous
+            continue
+        behind = np.searchsorted(zeros, here)  # how many delimiters of the block precede
+        floors = np.concatenate(([previous], zeros))[np.concatenate((kept, behind))] + 1
+        ends = np.concatenate((zeros[kept], here))
+        cut = np.concatenate((np.zeros(len(kept), bool), np.ones(len(here), bool)))
+        if len(zeros):
+            previous = int(zeros[-1])
+        order = np.lexsort((~cut, ends))  # a cut ends the chunk before a delimiter there
+        yield ends[order], cut[order], floors[order]
 
 
 def _deframe(
     np: Any, data: bytes, buf: np.ndarray, read_ends: np.ndarray, cuts: np.ndarray, rejected: dict
 ) -> Iterator[tuple[np.ndarray, np.ndarray]]:
     """Blocks of accepted packets: (delimiter position of each, its record), in stream
-    order within each packet length. Counts the rejections as it goes.
+    order within each packet length and scan block. Counts the rejections as it goes.
 
     Mirrors `framing.Deframer` fed read by read: a chunk is dropped undecoded (LENGTH) when
     at the end of some read more than `_MAX_CHUNK` of it had arrived; a chunk that no
     delimiter completes is pending, not rejected, and so is one cut off at `cuts`, where the
     byte stream broke (`Deframer.resync`): the next chunk begins there.
     """
-    delimiters = _delimiters(np, buf)
-    # Chunks end at delimiters, at cuts and (the pending tail) at the end of the data;
-    # a cut ends the chunk before a delimiter at the same place.
-    ends = np.concatenate((delimiters, cuts, [len(buf)]))
-    cut = np.concatenate((np.zeros(len(delimiters), bool), np.ones(len(cuts) + 1, bool)))
-    order = np.lexsort((~cut, ends))
-    ends, cut = ends[order], cut[order]
-    starts = np.empty_like(ends)
-    starts[0] = 0
-    starts[1:] = ends[:-1] + ~cut[:-1]  # past the delimiter, or right at the cut
-    lengths = ends - starts
     bounds = np.concatenate(([0], read_ends))
-    last_read_end = bounds[np.searchsorted(bounds, ends, side="right") - 1]
-    discarded = last_read_end - starts > _MAX_CHUNK
-    rejected[Rejection.LENGTH] += int(np.count_nonzero(discarded))
-    complete = ~discarded & (lengths > 0) & ~cut
-
     encoded = {length + 1: length for length in STATE_VERSIONS}
-    candidate = complete & np.isin(lengths, list(encoded))
-    other = complete & ~candidate
-    for start, end in zip(starts[other].tolist(), ends[other].tolist()):
-        try:
-            cobs.decode(data[start:end])
-        except cobs.DecodeError:
-            rejected[Rejection.COBS] += 1
-        else:
-            rejected[Rejection.LENGTH] += 1  # no other length can decode to a state packet
+    after = 0  # where the next chunk begins: past the last delimiter, or right at the cut
+    # Chunks end at delimiters, at cuts and (the pending tail) at the end of the data.
+    for ends, cut, floors in _boundaries(np, buf, cuts):
+        starts = np.concatenate(([after], ends[:-1] + ~cut[:-1]))
+        np.maximum(starts, floors, out=starts)  # a delimiter left out ends an empty chunk
+        after = int(ends[-1]) + (not cut[-1])
+        lengths = ends - starts
+        last_read_end = bounds[np.searchsorted(bounds, ends, side="right") - 1]
+        discarded = last_read_end - starts > _MAX_CHUNK
+        rejected[Rejection.LENGTH] += int(np.count_nonzero(discarded))
+        complete = ~discarded & (lengths > 0) & ~cut
 
-    for encoded_length, length in encoded.items():
-        rows = np.flatnonzero(candidate & (lengths == encoded_length))
-        if len(rows) == 0:
-            continue
-        windows = np.lib.stride_tricks.sliding_window_view(buf, encoded_length)
-        width = 8 * -(-encoded_length // 8)  # whole uint64 words, for the CRC
-        dtype = _record_dtype(np, length, width)
-        for first in range(0, len(rows), BLOCK_ROWS):
-            block = rows[first : first + BLOCK_ROWS]
-            payloads = np.zeros((len(block), width), np.uint8)
-            decoded = _decode_rows(np, windows[starts[block]], payloads)
-            keep = _accepted(np, payloads, decoded, length, rejected)
-            records = payloads.view(dtype)[:, 0]
-            if not keep.all():
-                records, block = records[keep], block[keep]
-            yield ends[block], records
+        candidate = complete & np.isin(lengths, list(encoded))
+        other = complete & ~candidate
+        for start, end in zip(starts[other].tolist(), ends[other].tolist()):
+            try:
+                cobs.decode(data[start:end])
+            except cobs.DecodeError:
+                rejected[Rejection.COBS] += 1
+            else:
+                rejected[Rejection.LENGTH] += 1  # no other length can decode to a state packet
+
+        for encoded_length, length in encoded.items():
+            rows = np.flatnonzero(candidate & (lengths == encoded_length))
+            if len(rows) == 0:
+                continue
+            windows = np.lib.stride_tricks.sliding_window_view(buf, encoded_length)
+            width = 8 * -(-encoded_length // 8)  # whole uint64 words, for the CRC
+            dtype = _record_dtype(np, length, width)
+            for first in range(0, len(rows), BLOCK_ROWS):
+                block = rows[first : first + BLOCK_ROWS]
+                payloads = np.zeros((len(block), width), np.uint8)
+                decoded = _decode_rows(np, windows[starts[block]], payloads)
+                keep = _accepted(np, payloads, decoded, length, rejected)
+                records = payloads.view(dtype)[:, 0]
+                if not keep.all():
+                    records, block = records[keep], block[keep]
+                yield ends[block], records
 
 
 def _decode_rows(np: Any, chunks: np.ndarray, payloads: np.ndarray) -> np.ndarray:

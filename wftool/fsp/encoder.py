@@ -9,11 +9,15 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
+from numbers import Integral
 
 from wftool.fsp.framing import encode_frame
 from wftool.fsp.packets import (
+    RC_CHANNELS,
+    RC_PULSE_US,
     SEQ_MODULUS,
     CommandPacket,
+    RcValues,
     StatePacket,
     TimeReply,
     pack_command,
@@ -61,8 +65,12 @@ class CommandSender:
         return encode_command(self.next(rc, now))
 
     def next(self, rc: Sequence[int], now: float | None = None) -> CommandPacket:
-        """The next command packet (see `encode`), recorded as sent."""
-        values = rc_values(rc)  # before anything is recorded as sent
+        """The next command packet (see `encode`), recorded as sent.
+
+        RC values other than six integers within `RC_PULSE_US` raise `TypeError` or
+        `ValueError`, before anything is counted or recorded.
+        """
+        values = checked_rc(rc)
         sent_at = self._now() if now is None else now
         packet = CommandPacket(
             rc=values, seq=self.seq % SEQ_MODULUS, tx_time_us=int(sent_at * 1e6) & U32_MASK
@@ -71,3 +79,21 @@ class CommandSender:
             self.round_trips.sent(packet.seq, packet.tx_time_us, sent_at)
         self.seq += 1
         return packet
+
+
+def checked_rc(rc: Sequence[int]) -> RcValues:
+    """`rc` as six ints within `RC_PULSE_US`, or `TypeError`/`ValueError` saying why not."""
+    if isinstance(rc, (str, bytes, bytearray, memoryview)):
+        raise TypeError(
+            f"RC values are a sequence of {len(RC_CHANNELS)} ints, not {type(rc).__name__}"
+        )
+    values = rc_values(tuple(rc))
+    low, high = RC_PULSE_US
+    for name, value in zip(RC_CHANNELS, values):
+        if isinstance(value, bool) or not isinstance(value, Integral):
+            raise TypeError(f"RC {name} must be an int (µs), not {type(value).__name__} {value!r}")
+        if not low <= value <= high:
+            raise ValueError(
+                f"RC {name} {value} µs is outside Betaflight's pulse range {low}..{high} µs"
+            )
+    return tuple(int(value) for value in values)  # type: ignore[return-value]

@@ -74,6 +74,10 @@ assert _TIME_REPLY.size == TIME_REPLY_LENGTH
 
 Q15 = 32768.0
 RC_CHANNELS = ("roll", "pitch", "yaw", "throttle", "aux3", "aux4")
+RC_PULSE_US = (750, 2250)
+"""The RC values a command may carry: Betaflight's PWM_PULSE_MIN/PWM_PULSE_MAX (rx/rx.h),
+the widest any receiver setup can take as a valid pulse (`rx_min_usec`/`rx_max_usec` are
+configured within them, cli/settings.c). Nothing outside leaves the OBC."""
 
 
 class SensorFrame:

@@ -7,6 +7,7 @@ surfaces as one `PortError` with a one-line message instead of a pyserial traceb
 
 from __future__ import annotations
 
+import array
 import contextlib
 import re
 import select
@@ -16,6 +17,13 @@ from urllib.parse import urlsplit
 
 import serial
 from serial.tools import list_ports
+from serial.urlhandler import protocol_socket
+
+try:
+    import fcntl
+    import termios
+except ImportError:  # not POSIX: in_waiting it is
+    fcntl = None  # type: ignore[assignment]
 
 from wftool.errors import PortError, UsageError
 
@@ -95,12 +103,26 @@ def read_within(port: Port, fd: int | None, timeout: float) -> bytes:
     return data + port.read(port.in_waiting) if data else data
 
 
+def read_size(port: Port) -> int:
+    """How much to read from `port` now: what has arrived, at least 1 (a read then waits for
+    it). pyserial's `in_waiting` of a socket:// port is never above 1 (it asks `select`),
+    so a reply of N bytes took N reads; the kernel's count is asked instead."""
+    if isinstance(port, protocol_socket.Serial) and port.is_open and fcntl is not None:
+        count = array.array("i", [0])
+        fcntl.ioctl(port.fileno(), termios.FIONREAD, count)
+        return max(1, count[0])
+    return max(1, port.in_waiting)
+
+
 def url_problem(url: str) -> str | None:
     """What is wrong with a network URL (`socket://HOST:PORT`, `rfc2217://…`), or None.
 
     pyserial's own complaints about these are cryptic ("'debug|info|warning|error'").
     """
-    parts = urlsplit(url)
+    try:
+        parts = urlsplit(url)
+    except ValueError as exc:  # an unbalanced '[' in the host: "Invalid IPv6 URL"
+        return f"not a URL ({exc})"
     if parts.scheme not in NETWORK_SCHEMES:
         return None
     example = f"{parts.scheme}://127.0.0.1:{NETWORK_SCHEMES[parts.scheme]}"

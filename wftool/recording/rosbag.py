@@ -8,6 +8,7 @@ topics and rates: docs/recording.md.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import time
@@ -84,10 +85,13 @@ class BagFile:
             self.metadata_path = path / "metadata.yaml"
         self.topics = topics
         self.custom = custom
-        created = self.directory is not None and not self.directory.exists()
+        created = False
         try:
             if self.directory is not None:
-                self.directory.mkdir(exist_ok=True)
+                self.directory.mkdir()
+                created = True
+        except FileExistsError:
+            pass  # empty, as checked; the MCAP file (created exclusively) is what claims it
         except OSError as exc:
             raise UsageError(f"cannot write the recording: {exc}") from None
         self._created = created
@@ -178,13 +182,16 @@ class BagFile:
         os.replace(temporary, self.metadata_path)
 
     def _remove(self, created: bool) -> None:
+        """Delete what this recording wrote, and nothing of another run's at its path: the
+        metadata is its own only once its MCAP file is (which another run can win)."""
         if self._out is not None:
             self._out.discard()
-        if self.metadata_path is not None:
-            for path in (self.metadata_path, self.metadata_path.with_suffix(".yaml.tmp")):
-                path.unlink(missing_ok=True)
+            if self.metadata_path is not None:
+                for path in (self.metadata_path, self.metadata_path.with_suffix(".yaml.tmp")):
+                    path.unlink(missing_ok=True)
         if created and self.directory is not None:
-            self.directory.rmdir()
+            with contextlib.suppress(OSError):  # not empty: another run records there
+                self.directory.rmdir()
 
 
 class RosbagWriter(BagFile):

@@ -14,6 +14,7 @@ from rich.console import Group, RenderableType
 from rich.panel import Panel
 from rich.text import Text
 
+from wftool.display import printable
 from wftool.fsp import SensorFrame
 from wftool.verify.criteria import Verdict
 from wftool.verify.monitor import OUTLIER, IntervalSummary, StreamSummary
@@ -187,9 +188,9 @@ def _verdict(verdict: Verdict) -> Text:
     for check in verdict.checks:
         mark, style = ("✓", "green") if check.passed else ("✗", "red")
         text.append(f"\n {mark} ", style=style)
-        text.append(check.describe())
+        text.append(printable(check.describe()))
     for note in verdict.notes:
-        text.append(f"\n - {note}", style="yellow")
+        text.append(f"\n - {printable(note)}", style="yellow")
     return text
 
 
@@ -197,7 +198,7 @@ def render(
     summary: StreamSummary, latest: SensorFrame | None, verdict: Verdict | None
 ) -> RenderableType:
     """The whole dashboard."""
-    state = "[green]connected[/]" if summary.connected else "[red]disconnected[/]"
+    state = ("connected", "green") if summary.connected else ("disconnected", "red")
     parts: list[RenderableType] = [
         *_rates(summary),
         Text(),
@@ -213,5 +214,11 @@ def render(
             parts += [Text(), line]
     if verdict is not None:
         parts += [Text(), _verdict(verdict)]
-    title = f"FSP {summary.port} — {state} — {summary.duration_s:.1f} s — {summary.frames:,} frames"
+    title = Text.assemble(
+        "FSP ",
+        printable(summary.port),
+        " — ",
+        state,
+        f" — {summary.duration_s:.1f} s — {summary.frames:,} frames",
+    )
     return Panel(Group(*parts), title=title, title_align="left")

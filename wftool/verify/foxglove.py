@@ -8,9 +8,17 @@ the live loop that never waits for a viewer (how: docs/ros2.md).
 
 from __future__ import annotations
 
+import contextlib
+import ipaddress
+import logging
+import os
+import queue
+import socket
+import threading
 from collections.abc import Sequence
 from typing import Any
 
+from wftool.display import printable
 from wftool.errors import UsageError
 from wftool.extras import require
 from wftool.fsp import SensorFrame, StatePacket
@@ -24,6 +32,7 @@ from wftool.recording.ros2msg import (
     MessageType,
     Throttle,
 )
+from wftool.verify.viewer_gate import GateLimits, ViewerGate
 
 DEFAULT_PORT = 8765
 DEFAULT_HOST = "127.0.0.1"
@@ -36,8 +45,33 @@ TOPICS: dict[str, MessageType] = {
 }
 
 
+def beyond_localhost(host: str) -> bool:
+    """Whether a server bound to `host` is reachable from other machines: any address it
+    names that is not loopback (0.0.0.0 and :: are all of them)."""
+    try:
+        found = socket.getaddrinfo(host or None, None, type=socket.SOCK_STREAM)
+    except (OSError, UnicodeError):
+        return True  # not known here: binding will say so
+    addresses = {str(info[4][0]).split("%")[0] for info in found}  # without an IPv6 scope
+    return not all(ipaddress.ip_address(address).is_loopback for address in addresses)
+
+
+def exposure_warning(host: str, port: int) -> str | None:
+    """What to tell the user before serving on `host`, if it reaches beyond this machine."""
+    if not beyond_localhost(host):
+        return None
+    return (
+        f"warning: the Foxglove view on {host}:{port} serves the live stream to anyone who "
+        "can reach this machine, without authentication"
+    )
+
+
 class FoxgloveLive:
-    """A Foxglove WebSocket server on `host:port` (port 0: any free one); `close()` stops it."""
+    """A Foxglove WebSocket server on `host:port` (port 0: any free one); `close()` stops it.
+
+    Viewers reach the SDK's server (on 127.0.0.1, a free port) through a `ViewerGate`,
+    which bounds what each may cost (`limits`).
+    """
 
     def __init__(
         self,
@@ -46,19 +80,30 @@ class FoxgloveLive:
         *,
         backlog: int = BACKLOG,
         encoder: FrameEncoder | None = None,
+        limits: GateLimits | None = None,
     ) -> None:
         require("foxglove", what="the live Foxglove view")
         import foxglove
 
+        _log_sdk_without_blocking()
         self._encoder = encoder or FrameEncoder()
         self._context = context = foxglove.Context()  # channels and server live as long as it
         try:
             self._server = foxglove.start_server(
-                name="wftool", host=host, port=port, context=context, message_backlog_size=backlog
+                name="wftool",
+                host="127.0.0.1",
+                port=0,
+                context=context,
+                message_backlog_size=backlog,
             )
         except RuntimeError as exc:  # the SDK's FoxgloveError
             reason = str(exc).removeprefix("FoxgloveError: ")
-            raise UsageError(f"cannot serve Foxglove on {host}:{port}: {reason}") from None
+            raise UsageError(f"cannot serve Foxglove: {reason}") from None
+        try:
+            self._gate = ViewerGate(host, port, self._server.port, limits or GateLimits())
+        except BaseException:
+            self._server.stop()
+            raise
         self.host = host
         channels: dict[str, Any] = {
             topic: foxglove.Channel(
@@ -80,7 +125,7 @@ class FoxgloveLive:
 
     @property
     def port(self) -> int:
-        return self._server.port
+        return self._gate.port
 
     @property
     def url(self) -> str:
@@ -120,6 +165,7 @@ class FoxgloveLive:
                 self.publish(frame, health, packet.arrival_time)
 
     def close(self) -> None:
+        self._gate.close()
         for channel in self._channels.values():
             channel.close()
         self._channels = {}
@@ -130,3 +176,39 @@ class FoxgloveLive:
 
     def __exit__(self, *exc_info: object) -> None:
         self.close()
+
+
+class _LogBehind(logging.Handler):
+    """Hands log records to a thread that writes them to stderr, through a bounded queue;
+    what does not fit is dropped (and counted): a stderr nobody reads blocks that thread
+    only, never the one that logs."""
+
+    def __init__(self, capacity: int = 256) -> None:
+        super().__init__(logging.WARNING)
+        self._lines: queue.Queue[str] = queue.Queue(capacity)
+        self.dropped = 0
+        threading.Thread(target=self._write, name="foxglove log", daemon=True).start()
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            self._lines.put_nowait(f"foxglove: {printable(record.getMessage())}\n")
+        except queue.Full:
+            self.dropped += 1
+
+    def _write(self) -> None:
+        while True:
+            line = self._lines.get().encode("utf-8", "replace")
+            with contextlib.suppress(OSError):  # no stderr: nothing to say it on
+                os.write(2, line)  # not sys.stderr: its lock would be held while it blocks
+
+
+def _log_sdk_without_blocking() -> None:
+    """The SDK logs into Python's logging from its own threads (a failed handshake, a
+    dropped viewer). With no handler configured, logging's last resort writes to stderr from
+    those threads, and on a pipe nobody reads that write blocks: the server stops. Unless
+    the program set up logging itself, the SDK's records go through `_LogBehind`."""
+    logger = logging.getLogger("foxglove")
+    if logger.handlers or logging.getLogger().handlers:
+        return
+    logger.addHandler(_LogBehind())
+    logger.propagate = False

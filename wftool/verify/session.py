@@ -27,7 +27,7 @@ from wftool.verify.criteria import Criteria, Verdict, criteria_for, judge
 from wftool.verify.foxglove import DEFAULT_HOST, FoxgloveLive
 from wftool.verify.live import Commander, LiveOptions, run_live
 from wftool.verify.monitor import StreamMonitor, StreamSummary
-from wftool.verify.uplink import UplinkTracker
+from wftool.verify.uplink import UplinkTracker, check_uplink_rate
 
 
 def fc_frame_rate_hz(msp_url: str, fsp_rate_hz: float) -> float:
@@ -93,6 +93,8 @@ class VerifySession:
         if commander is not None and uplink_rate_hz is not None:
             raise UsageError("the uplink pattern and another commander cannot both send commands")
         self._commander = commander
+        if uplink_rate_hz is not None:
+            check_uplink_rate(uplink_rate_hz)
         self.options = LiveOptions(url, baudrate, duration_s, uplink_rate_hz)
         self.criteria = criteria or criteria_for(uplink=uplink_rate_hz is not None)
         uplink = UplinkTracker() if uplink_rate_hz is not None else None

@@ -12,13 +12,27 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from wftool.errors import UsageError
 from wftool.fsp import StatePacket
+from wftool.fsp.schedule import RATE_HZ_MAX
 
 PATTERN = (1100, 1300, 1500, 1700, 1900, 1200, 1400, 1600, 1800)
 NEUTRAL = 1500
 THROTTLE_MIN = 1000
 STEP_S = 0.1
 """How long each roll value is held."""
+
+
+def check_uplink_rate(rate_hz: float, name: str = "the uplink rate") -> float:
+    """`rate_hz`, if commands can be sent at it: finite, above 0 and at most RATE_HZ_MAX,
+    else a `UsageError` naming it as `name`. The FC applies the newest command once per FSP
+    task run, and the task runs once per frame (at most RATE_HZ_MAX): faster is lost."""
+    if not (math.isfinite(rate_hz) and 0 < rate_hz <= RATE_HZ_MAX):
+        raise UsageError(
+            f"{name} must be above 0 and at most {RATE_HZ_MAX} commands/s (the FC applies one "
+            f"per FSP frame at most), not {rate_hz:g}"
+        )
+    return rate_hz
 
 
 def pattern_command(index: int, rate_hz: float) -> tuple[int, int, int, int, int, int]:
