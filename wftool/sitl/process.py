@@ -31,6 +31,16 @@ ACCEPT_TIMEOUT_S = 3.0
 LOOP_TIMEOUT_S = 3.0
 
 
+def exit_status(status: int) -> str:
+    """A process's exit status in words: "status 1", "SIGSEGV"."""
+    if status < 0:
+        try:
+            return signal.Signals(-status).name
+        except ValueError:
+            return f"signal {-status}"
+    return f"status {status}"
+
+
 def uart_url(uart: int, port_base: int = DEFAULT_PORT_BASE) -> str:
     """The pyserial URL of SITL's UART number `uart` (1-based)."""
     return f"socket://{LOOPBACK}:{port_base + uart}"
@@ -221,7 +231,9 @@ class VirtualFC:
             status = self._process.poll()
             if status is not None:
                 self._process = None
-                raise SitlError(f"SITL exited with status {status} while starting: {self.log_path}")
+                raise SitlError(
+                    f"SITL ended with {exit_status(status)} while starting: {self.log_path}"
+                )
             if time.monotonic() > deadline:
                 return None
             time.sleep(0.01)
@@ -254,10 +266,13 @@ class VirtualFC:
         """
         if self._process is not None:
             try:
-                self._process.wait(timeout)
+                status = self._process.wait(timeout)
             except subprocess.TimeoutExpired as exc:
                 raise SitlError(f"SITL did not reset within {timeout:.0f} s") from exc
             self._process = None
+            if status != 0:  # a reset exits with 0: anything else is a crash, not to be hidden
+                raise SitlError(f"SITL ended with {exit_status(status)} instead of resetting: "
+                                f"{self.log_path}")  # fmt: skip
         self.start()
 
     def __enter__(self) -> VirtualFC:

@@ -208,7 +208,7 @@ class VirtualFcSession:
                 if not self.fc.running:
                     if on_reset is not None:
                         on_reset()
-                    self.fc.start()
+                    self.fc.wait_back()  # a crash is raised, not started again
         finally:
             stop.set()
             if thread is not None:
