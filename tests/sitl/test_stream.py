@@ -24,6 +24,7 @@ from wftool.fc.cli_session import CliSession
 from wftool.fc.msp import MspClient
 from wftool.fsp import FspReader, StatePacket
 from wftool.fsp.schedule import frame_rate_hz, lockstep_interval
+from wftool.sitl.process import VirtualBoard
 from wftool.sitl.session import Motion, VirtualFcSession
 
 pytestmark = pytest.mark.slow
@@ -140,6 +141,36 @@ def test_frames_are_one_lockstep_interval_apart_with_nothing_dropped(
     times = [frame.time_us for p in packets for frame in p.frames]
     period = lockstep_interval(moving_fc.rate_hz, looptime_us) * looptime_us
     assert {b - a for a, b in pairwise(times)} == {period}
+
+
+def test_a_gyro_clock_of_its_own_sets_the_loop_rate_and_micros_truncates(
+    sitl_binary: Path, tmp_path: Path
+) -> None:
+    """A board's gyro runs off its own oscillator: the paper's BMI270 reports 3200 Hz and its
+    scheduler 3148 Hz (§5.1). The loop locks onto the samples, FC time stays exact and
+    micros() truncates it, as a timer does: fsp_rate_hz 1100 takes every 3rd iteration, so
+    frames are 3/3148 s apart, each interval 952 or 953 µs, and their mean is exact."""
+    clock_hz = 3148
+    board = VirtualBoard(gyro_hz=3200, gyro_clock_hz=clock_hz)
+    with VirtualFcSession(sitl_binary, tmp_path, port_base=None, board=board) as fc:
+        collector = Collector(fc.fsp_url)
+        collector.start()
+        time.sleep(SETTLE_S)
+        collector.stop()
+        session = CliSession.open(fc.msp_url)  # left open: `exit` would reboot the FC
+        try:
+            measured = task_rates(session.run("tasks"))
+        finally:
+            session.close()
+
+    times = [frame.time_us for p in collector.packets for frame in p.frames]
+    assert len(times) > 4000
+    assert {b - a for a, b in pairwise(times)} == {952, 953}
+    period_us = 3 * 1e6 / clock_hz
+    assert abs((times[-1] - times[0]) / (len(times) - 1) - period_us) < 1 / (len(times) - 1)
+    # the FC's own scheduler: rates from moving averages of truncated µs deltas
+    for name, hz in (("GYRO", clock_hz), ("PID", clock_hz), ("FSP", clock_hz / 3)):
+        assert abs(measured[name] - hz) <= 0.001 * hz + 1, (name, measured[name])
 
 
 def test_msp_is_served_at_the_serial_rate_asked_for(sitl_binary: Path, tmp_path: Path) -> None:

@@ -14,9 +14,9 @@ from wftool.sitl.truth import TrueClock, read_anchors
 U32 = 1 << 32
 
 
-def anchor(fc_us: int, monotonic_ns: int, reason: str = "start") -> str:
+def anchor(fc_us: int, monotonic_ns: int, reason: str = "start", step_us: str = "125.000") -> str:
     return (
-        f"[SITL] lockstep anchor: fc_us={fc_us} monotonic_ns={monotonic_ns} step_us=125 "
+        f"[SITL] lockstep anchor: fc_us={fc_us} monotonic_ns={monotonic_ns} step_us={step_us} "
         f"reason={reason}\n"
     )
 
@@ -33,10 +33,11 @@ def test_maps_fc_time_through_the_latest_anchor_before_it(tmp_path: Path) -> Non
         "bind port 5761 for UART1\n",
         anchor(500_000, 10_000_000_000),
         "[NEW]UART1: 1,1\n",
-        anchor(3_000_000, 12_600_000_000, "host-lag"),  # the host fell 100 ms behind
+        anchor(3_000_000, 12_600_000_000, "host-lag", "317.662"),  # the host fell 100 ms behind
     )
     clock = TrueClock(log)
     assert [a.reason for a in clock.anchors] == ["start", "host-lag"]
+    assert [a.step_us for a in clock.anchors] == [125.0, 317.662]  # a gyro clock of its own
     assert clock.monotonic(500_000) == pytest.approx(10.0, abs=1e-12)
     assert clock.monotonic(2_999_875) == pytest.approx(12.499875, abs=1e-12)
     assert clock.monotonic(3_000_000) == pytest.approx(12.6, abs=1e-12)

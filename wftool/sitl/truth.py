@@ -16,7 +16,7 @@ from wftool.errors import SitlError
 
 U32 = 1 << 32
 _ANCHOR = re.compile(
-    rb"\[SITL\] lockstep anchor: fc_us=(\d+) monotonic_ns=(\d+) step_us=(\d+) reason=([\w-]+)"
+    rb"\[SITL\] lockstep anchor: fc_us=(\d+) monotonic_ns=(\d+) step_us=([\d.]+) reason=([\w-]+)"
 )
 _FUTURE_SLACK_US = 1_000_000
 """Lifting a u32 time: how far past the FC's present it may lie (it cannot: the FC never
@@ -29,7 +29,8 @@ class Anchor:
 
     fc_us: int
     monotonic_ns: int
-    step_us: int
+    step_us: float
+    """The gyro period (exact to the ns: FC time need not move in whole µs)."""
     reason: str
 
 
@@ -43,7 +44,7 @@ def read_anchors(log_path: Path, offset: int = 0) -> tuple[list[Anchor], int]:
         raise SitlError(f"cannot read the SITL log {log_path}: {exc.strerror}") from None
     whole = text.rfind(b"\n") + 1  # a line still being written is read next time
     anchors = [
-        Anchor(int(m[1]), int(m[2]), int(m[3]), m[4].decode())
+        Anchor(int(m[1]), int(m[2]), float(m[3]), m[4].decode())
         for m in _ANCHOR.finditer(text, 0, whole)
     ]
     return anchors, offset + whole
