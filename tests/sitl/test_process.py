@@ -27,6 +27,7 @@ from wftool.sitl.process import (
     uart_url,
 )
 from wftool.sitl.session import Motion
+from wftool.sitl.truth import read_lateness
 
 
 def _alive(pid: int) -> bool:
@@ -131,6 +132,13 @@ def test_a_simulator_sending_while_the_fc_boots_does_not_crash_it(
         stop.set()
         sender.join()
         fc.stop()
+
+
+def test_the_sitl_says_how_late_the_host_ran_it(virtual_fc: VirtualFC) -> None:
+    """Lateness totals from the first instant the clock waited for (patch 0015)."""
+    assert wait_for(lambda: read_lateness(virtual_fc.log_path), 5)
+    first = read_lateness(virtual_fc.log_path)[0]
+    assert first.waits >= 1 and first.max_us >= 0
 
 
 def test_two_virtual_fcs_run_side_by_side(

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from wftool.errors import SitlError
-from wftool.sitl.truth import TrueClock, read_anchors
+from wftool.sitl.truth import TrueClock, read_anchors, read_lateness
 
 U32 = 1 << 32
 
@@ -94,3 +94,28 @@ def test_a_log_without_anchors_is_a_clear_error(tmp_path: Path) -> None:
         TrueClock(log)
     with pytest.raises(SitlError, match="cannot read"):
         TrueClock(tmp_path / "missing.log")
+
+
+def lateness(fc_us: int, waits: int, over: tuple[int, int, int, int], max_us: int) -> str:
+    counts = " ".join(f"over_{b}us={n}" for b, n in zip((100, 250, 500, 1000), over, strict=True))
+    return f"[SITL] lockstep lateness: fc_us={fc_us} waits={waits} {counts} max_us={max_us}\n"
+
+
+def test_lateness_totals_of_the_latest_process_and_their_differences(tmp_path: Path) -> None:
+    log = write(
+        tmp_path / "sitl.log",
+        lateness(500_000, 1, (0, 0, 0, 0), 20),
+        lateness(10_500_000, 50_000, (900, 300, 100, 40), 4000),
+        "[system]Reset!\n",  # a new process: its totals start again
+        lateness(480_000, 1, (0, 0, 0, 0), 12),
+        lateness(10_480_000, 40_000, (100, 20, 5, 1), 1100),
+        lateness(20_480_000, 90_000, (300, 50, 15, 2), 1300),
+    )
+    totals = read_lateness(log)
+    assert [t.fc_us for t in totals] == [480_000, 10_480_000, 20_480_000]
+    window = totals[2].since(totals[1])
+    assert (window.waits, window.over_us, window.max_us) == (
+        50_000,
+        {100: 200, 250: 30, 500: 10, 1000: 1},
+        1300,
+    )

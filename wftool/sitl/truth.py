@@ -1,5 +1,5 @@
 """The virtual FC's true clock: the host `time.monotonic()` instant of every FC time, from the
-lockstep anchors the SITL logs (docs/design.md).
+lockstep anchors the SITL logs, and how late the host let it reach its instants (docs/design.md).
 
     TrueClock(fc.log_path).instant(frame.time_us)
 """
@@ -18,6 +18,12 @@ U32 = 1 << 32
 _ANCHOR = re.compile(
     rb"\[SITL\] lockstep anchor: fc_us=(\d+) monotonic_ns=(\d+) step_us=([\d.]+) reason=([\w-]+)"
 )
+_LATENESS = re.compile(
+    rb"\[SITL\] lockstep lateness: fc_us=(\d+) waits=(\d+) over_100us=(\d+) over_250us=(\d+) "
+    rb"over_500us=(\d+) over_1000us=(\d+) max_us=(\d+)"
+)
+LATE_OVER_US = (100, 250, 500, 1000)
+"""The lateness bounds the SITL counts instants over."""
 _FUTURE_SLACK_US = 1_000_000
 """Lifting a u32 time: how far past the FC's present it may lie (it cannot: the FC never
 runs ahead of the host clock)."""
@@ -32,6 +38,38 @@ class Anchor:
     step_us: float
     """The gyro period (exact to the ns: FC time need not move in whole µs)."""
     reason: str
+
+
+@dataclass(frozen=True)
+class Lateness:
+    """How late the host let the FC reach its instants: totals up to FC time `fc_us`."""
+
+    fc_us: int
+    waits: int
+    over_us: dict[int, int]
+    """Instants reached later than each of `LATE_OVER_US` µs."""
+    max_us: int
+    """The latest one so far (since the process started)."""
+
+    def since(self, earlier: Lateness) -> Lateness:
+        """The counts between `earlier` and this (its `max_us` stays the running maximum)."""
+        over = {bound: count - earlier.over_us[bound] for bound, count in self.over_us.items()}
+        return Lateness(self.fc_us, self.waits - earlier.waits, over, self.max_us)
+
+
+def read_lateness(log_path: Path) -> list[Lateness]:
+    """The lateness totals of the latest SITL process in `log_path` (see the module)."""
+    try:
+        text = log_path.read_bytes()
+    except OSError as exc:
+        raise SitlError(f"cannot read the SITL log {log_path}: {exc.strerror}") from None
+    totals: list[Lateness] = []
+    for match in _LATENESS.finditer(text):
+        fc_us, waits, *over, max_us = (int(group) for group in match.groups())
+        if totals and waits < totals[-1].waits:
+            totals = []  # a later process: its totals start again
+        totals.append(Lateness(fc_us, waits, dict(zip(LATE_OVER_US, over, strict=True)), max_us))
+    return totals
 
 
 def read_anchors(log_path: Path, offset: int = 0) -> tuple[list[Anchor], int]:
