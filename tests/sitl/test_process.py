@@ -185,6 +185,8 @@ def test_ports_taken_after_they_were_found_free_are_traded_for_others(
     choices = iter([first, second])
     monkeypatch.setattr(process, "free_port_base", lambda: next(choices))
     with socket.socket() as holder:
+        # as servers do (and SITL): an earlier test's TIME_WAIT on the port does not count
+        holder.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         holder.bind((LOOPBACK, first + 1))
         holder.listen()
         with VirtualFC(sitl_binary, tmp_path, port_base=None) as fc:
