@@ -143,3 +143,12 @@ def test_reboot_to_bootloader_resets_sitl(virtual_fc: VirtualFC) -> None:
 def test_reboot_mode_the_firmware_lacks_is_refused(virtual_fc: VirtualFC) -> None:
     with MspClient.open(virtual_fc.url) as msp, pytest.raises(MspError, match="MSP_REBOOT"):
         msp.reboot(RebootMode.MSC)  # SITL has no USB mass storage
+
+
+def test_the_pid_period_is_the_mean_of_the_usual_readings(monkeypatch: pytest.MonkeyPatch) -> None:
+    """317 and 318 µs readings of a 317.662 µs loop (3148 Hz) average to its period; a reading
+    of a loop that stalled once is not one of them."""
+    readings = iter([318, 317, 318, 318, 317, 318] * 10 + [2000, 0])
+    monkeypatch.setattr(MspClient, "pid_cycle_us", lambda self: next(readings))
+    client = MspClient.__new__(MspClient)  # no link: only the readings above
+    assert client.pid_period_us(62) == pytest.approx((318 * 4 + 317 * 2) / 6)

@@ -22,6 +22,7 @@ import pytest
 
 from wftool.fc.cli_session import CliSession
 from wftool.fc.msp import MspClient
+from wftool.fc.tasks import parse_tasks
 from wftool.fsp import FspReader, StatePacket
 from wftool.fsp.schedule import frame_rate_hz, lockstep_interval
 from wftool.sitl.process import VirtualBoard
@@ -55,6 +56,11 @@ class Collector(threading.Thread):
         self.reader.close()
 
 
+def task_rates(session: CliSession) -> dict[str, int]:
+    """Task name -> the rate the FC's `tasks` reports."""
+    return {name: row.rate_hz for name, row in parse_tasks(session.run("tasks")).items()}
+
+
 def declared_rates(tree: Path) -> dict[str, int]:
     """Task name -> the rate its DEFINE_TASK declares, where that is a number."""
     rates = {}
@@ -62,18 +68,6 @@ def declared_rates(tree: Path) -> dict[str, int]:
         if match := _DECLARED.search(line):
             name, sub, hz = match.groups()
             rates[f"{name}/{sub}" if sub else name] = int(hz)
-    return rates
-
-
-def task_rates(output: str) -> dict[str, int]:
-    """Task name -> rate/hz from the CLI's `tasks` table (two SYSTEM rows: LOAD, UPDATE)."""
-    rates: dict[str, int] = {}
-    for line in output.splitlines():
-        if match := re.match(r"\d+ - \(\s*(\w+)\)\s+(\d+)", line.strip()):
-            name, hz = match.group(1), int(match.group(2))
-            if name == "SYSTEM":
-                name = "SYSTEM/LOAD" if "SYSTEM/LOAD" not in rates else "SYSTEM/UPDATE"
-            rates[name] = hz
     return rates
 
 
@@ -94,7 +88,7 @@ def test_every_task_runs_at_its_configured_rate(
     session = CliSession.open(moving_fc.msp_url)  # left open: `exit` would reboot the FC
     try:
         serial_hz = int(session.get("serial_update_rate_hz").value)
-        measured = task_rates(session.run("tasks"))
+        measured = task_rates(session)
     finally:
         session.close()
         collector.stop()
@@ -157,12 +151,15 @@ def test_a_gyro_clock_of_its_own_sets_the_loop_rate_and_micros_truncates(
         collector.start()
         time.sleep(SETTLE_S)
         collector.stop()
+        with MspClient.open(fc.msp_url) as msp:
+            period_us = msp.pid_period_us(256)  # 317 or 318 µs a read
         session = CliSession.open(fc.msp_url)  # left open: `exit` would reboot the FC
         try:
-            measured = task_rates(session.run("tasks"))
+            measured = task_rates(session)
         finally:
             session.close()
 
+    assert abs(period_us - 1e6 / clock_hz) < 0.25
     times = [frame.time_us for p in collector.packets for frame in p.frames]
     assert len(times) > 4000
     assert {b - a for a, b in pairwise(times)} == {952, 953}
@@ -184,7 +181,7 @@ def test_msp_is_served_at_the_serial_rate_asked_for(sitl_binary: Path, tmp_path:
         time.sleep(2.0)
         session = CliSession.open(fc.msp_url)
         try:
-            serial_hz = task_rates(session.run("tasks"))["SERIAL"]
+            serial_hz = task_rates(session)["SERIAL"]
         finally:
             session.close()
     assert abs(serial_hz - 1000) <= RATE_TOLERANCE * 1000

@@ -277,6 +277,11 @@ class FcIdentity:
     build: BuildInfo
 
 
+PID_PERIOD_SAMPLES = 200
+"""MSP_STATUS reads `pid_period_us` averages: ±0.05 µs for a loop of a fractional period
+(0.2 s at a 1 kHz serial task, 2 s at Betaflight's default 100 Hz)."""
+
+
 class MspClient:
     """Request/reply MSP over an open link. One request in flight at a time."""
 
@@ -404,6 +409,16 @@ class MspClient:
     def pid_cycle_us(self) -> int:
         """The PID loop period the FC measures (MSP_STATUS); 0 while the loop does not run."""
         return _Fields(Cmd.STATUS, self.request(Cmd.STATUS)).unpack("H")[0]
+
+    def pid_period_us(self, samples: int = PID_PERIOD_SAMPLES) -> float:
+        """The PID loop's mean period: `pid_cycle_us` (the latest period, in whole µs as the
+        FC's timer truncates it: 317 or 318 for a 3148 Hz loop) averaged over `samples`
+        reads, those more than 1 µs from their median left out (a period the loop stretched
+        or cut once is not its own); 0.0 while the loop does not run."""
+        periods = sorted(self.pid_cycle_us() for _ in range(samples))
+        median = periods[len(periods) // 2]
+        usual = [period for period in periods if abs(period - median) <= 1]
+        return sum(usual) / len(usual)
 
     def features(self) -> int:
         """The configured feature bit mask (takes effect at boot)."""

@@ -176,7 +176,7 @@ class VirtualFcSession:
     def expected_rate_hz(self) -> float:
         """The frame rate this FC streams: its `fsp_rate_hz` and PID looptime (over MSP)."""
         with MspClient.open(self.msp_url) as msp:
-            return frame_rate_hz(self.rate_hz, msp.pid_cycle_us())
+            return frame_rate_hz(self.rate_hz, msp.pid_period_us())
 
     @property
     def msp_url(self) -> str:

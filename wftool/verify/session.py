@@ -34,7 +34,7 @@ def fc_frame_rate_hz(msp_url: str, fsp_rate_hz: float) -> float:
     """The frame rate an FC configured with `fsp_rate_hz` streams: from its PID looptime,
     asked over MSP on `msp_url` (its MSP port, not the FSP port)."""
     with MspClient.open(msp_url) as msp:
-        return frame_rate_hz(fsp_rate_hz, msp.pid_cycle_us())
+        return frame_rate_hz(fsp_rate_hz, msp.pid_period_us())
 
 
 @dataclass(frozen=True)
