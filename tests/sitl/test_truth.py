@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from wftool.errors import SitlError
-from wftool.sitl.truth import TrueClock, read_anchors, read_lateness
+from wftool.sitl.truth import TrueClock, lateness_between, read_anchors, read_lateness
 
 U32 = 1 << 32
 
@@ -119,3 +119,19 @@ def test_lateness_totals_of_the_latest_process_and_their_differences(tmp_path: P
         {100: 200, 250: 30, 500: 10, 1000: 1},
         1300,
     )
+
+
+def test_lateness_between_two_host_instants(tmp_path: Path) -> None:
+    """Totals logged every 10 s of FC time, told apart over the lines within the window."""
+    log = write(
+        tmp_path / "sitl.log",
+        anchor(500_000, 10_000_000_000),  # FC time 0.5 s is host 10 s
+        lateness(500_000, 1, (0, 0, 0, 0), 20),
+        lateness(10_500_000, 50_000, (900, 300, 100, 40), 4000),
+        lateness(20_500_000, 90_000, (1000, 320, 110, 41), 4000),
+        lateness(30_500_000, 140_000, (1500, 400, 150, 60), 6000),
+    )
+    window = lateness_between(log, 19.0, 31.0)  # host 20 s and 30 s: FC 10.5 s and 20.5 s
+    assert window is not None
+    assert (window.waits, window.over_us[500], window.over_us[1000]) == (40_000, 10, 1)
+    assert lateness_between(log, 19.0, 25.0) is None  # one line within: nothing to tell apart

@@ -59,6 +59,13 @@ rate_option = click.option(
     "unless --clock says otherwise.",
 )
 @click.option(
+    "--paper",
+    is_flag=True,
+    help="As the paper's board: a gyro reporting 3200 Hz whose samples come at 3148 Hz, UARTs "
+    "at their baud rates, serial_update_rate_hz 1000, the MSP port at 921600 baud (the "
+    "options below override).",
+)
+@click.option(
     "--gyro-hz",
     type=click.IntRange(GYRO_HZ_MIN, GYRO_HZ_MAX),
     help="The sample rate the virtual gyro reports; the FC's looptime follows from it [8000].",
@@ -105,7 +112,8 @@ rate_option = click.option(
 @criteria_options
 def sitl(
     binary: Path | None, workdir: Path | None, rate_hz: int, motion: bool, time_reply: bool,
-    gyro_hz: int | None, gyro_clock_hz: float | None, uart_pacing: bool, msp_baud: int | None,
+    paper: bool, gyro_hz: int | None, gyro_clock_hz: float | None, uart_pacing: bool,
+    msp_baud: int | None,
     verify_s: float | None, port_base: int, project_dir: Path | None, **options: Any,
 ) -> None:  # fmt: skip
     """Run the virtual FC: the patched SITL with FSP on UART2, until Ctrl-C (or --verify).
@@ -125,9 +133,21 @@ def sitl(
         binary = build_sitl(project_dir)
     workdir = workdir or Path(tempfile.mkdtemp(prefix="wftool-sitl-"))
     board = VirtualBoard(gyro_hz, gyro_clock_hz, uart_pacing)
+    serial_update_rate_hz = None
+    if paper:
+        from wftool.analysis.setup import PAPER_BOARD, PAPER_MSP_BAUD, SERIAL_RATE_HZ
+
+        board = VirtualBoard(
+            gyro_hz or PAPER_BOARD.gyro_hz,
+            gyro_clock_hz or PAPER_BOARD.gyro_clock_hz,
+            True,
+        )
+        msp_baud = msp_baud or PAPER_MSP_BAUD
+        serial_update_rate_hz = SERIAL_RATE_HZ
     session = VirtualFcSession(
         binary, workdir, rate_hz=rate_hz, motion=Motion() if motion else None,
         port_base=port_base or None, time_reply=time_reply, board=board, msp_baud=msp_baud,
+        serial_update_rate_hz=serial_update_rate_hz,
     )  # fmt: skip
     err.print(f"starting the virtual FC in {workdir} …")
     with session:

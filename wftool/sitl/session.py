@@ -203,6 +203,11 @@ class VirtualFcSession:
             raise
         return self
 
+    def set_msp_baud(self, baud: int) -> None:
+        """Give the MSP port another baud rate, saved: the FC restarts with it."""
+        apply_plan(self.fc, with_msp_baud(lambda session: Plan([]), baud), self.workdir / "backups")
+        self.msp_baud = baud
+
     def serve(
         self,
         on_reset: Callable[[], None] | None = None,

@@ -137,3 +137,13 @@ class TrueClock:
     def instant(self, fc_time_us: int, now: float | None = None) -> float:
         """The true host instant (s, `time.monotonic`) of an FC time known modulo 2^32."""
         return self.monotonic(self.micros64(fc_time_us, now))
+
+
+def lateness_between(log_path: Path, start: float, end: float) -> Lateness | None:
+    """How late the host ran the latest SITL process in `log_path` between host instants
+    `start` and `end` (`time.monotonic`): the totals logged within, told apart (None with
+    fewer than two lines within: they come every 10 s of FC time)."""
+    clock = TrueClock(log_path)
+    clock.refresh()
+    within = [t for t in read_lateness(log_path) if start <= clock.monotonic(t.fc_us) <= end]
+    return within[-1].since(within[0]) if len(within) >= 2 else None
