@@ -32,7 +32,7 @@ from wftool.verify.session import replay
 np = pytest.importorskip("numpy", reason="needs the analysis extra (NumPy)")
 pytest.importorskip("matplotlib", reason="needs the analysis extra (Matplotlib)")
 
-from wftool.analysis.timing import load_timing  # noqa: E402
+from wftool.analysis.timing import load_timing, table_rows  # noqa: E402
 
 EXPECTED_HZ = 1000.0
 STEPS_US = (960, 980, 1000, 1000, 1000, 1020, 1040, 2000)
@@ -233,12 +233,16 @@ def test_cli_writes_the_table_and_figures(tmp_path: Path, capsys) -> None:
         capsys, "analyze", "timing", str(tmp_path / "fsp"), "--out", str(out), "--paper"
     )
     assert code == 0, stderr
-    assert "FSP: the paper" in stdout and "not available" in stdout
+    assert "FSP: the paper" in stdout and "FSP: fsp − the paper" in stdout
     assert "split at 1 FC reset, 2 gaps" in stdout
     data = json.loads((out / "timing.json").read_text())
     stats = load_timing(tmp_path / "fsp").stats
     assert data["recordings"][0]["stats"]["p99_us"] == stats.p99_us
-    assert data["paper"]["FSP"]["mean_us"] is None
+    paper_p99 = data["paper"]["FSP"]["p99_us"]
+    assert "Table 1" in paper_p99["source"]
+    rows = {row["recording"]: row for row in table_rows([load_timing(tmp_path / "fsp")], True)}
+    difference = float(rows["FSP: fsp − the paper"]["P99 (µs)"])
+    assert difference == pytest.approx(stats.p99_us - paper_p99["value"], abs=0.05)
     assert "| FSP: fsp |" in (out / "timing.md").read_text()
     for name in ("fig2-histograms.png", "fig3-intervals.png"):
         assert (out / name).read_bytes()[:4] == b"\x89PNG"

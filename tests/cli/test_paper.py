@@ -1,4 +1,5 @@
-"""`wftool paper timing` end to end on the virtual FC: the files and both rows of Table 1.
+"""`wftool paper timing` end to end on the virtual FC: the paper's board, the files, report.md
+with both rows of Table 1 beside the paper's, and the MSP port's baud-rate sweep.
 
 The timings themselves are not judged here (a loaded machine makes them what it makes
 them); the statistics are checked against known intervals in tests/analysis/test_timing.py.
@@ -7,6 +8,7 @@ them); the statistics are checked against known intervals in tests/analysis/test
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -17,7 +19,8 @@ pytest.importorskip("matplotlib", reason="needs the analysis extra (Matplotlib)"
 pytestmark = pytest.mark.slow
 
 FILES = (
-    "table1.md", "table1.json", "fig2-histograms.png", "fig3-intervals.png",
+    "report.md", "table1.json", "msp-115200/metadata.yaml", "msp-1000000/metadata.yaml",
+    "fig2-histograms.png", "fig3-intervals.png",
     "fig4-fsp-spectrum.png", "fig4-accfilter-spectrum.png", "accfilter/accfilter.md",
     "fsp/metadata.yaml", "msp/metadata.yaml",
 )  # fmt: skip
@@ -35,14 +38,23 @@ def test_paper_timing_on_the_virtual_fc(
     for name in FILES:
         if name.endswith(".png"):
             assert (out / name).read_bytes()[:4] == b"\x89PNG"
-    table = (out / "table1.md").read_text()
-    for row in ("| FSP |", "| FSP: the paper |", "| MSP |", "| MSP: the paper |"):
-        assert row in table
+    report = (out / "report.md").read_text()
+    for section in ("## Set-up", "## MSP: ", "## FSP: ", "## MSP and the MSP port's baud rate",
+                    "## The FC's own account", "## Figures"):  # fmt: skip
+        assert section in report, section
+    for metric in ("expected", "mean", "median", "1st percentile", "99th percentile"):
+        assert report.count(f"| {metric} |") == 2  # MSP and FSP
+    # the paper's board: the FC's own scheduler runs the 3148 Hz loop, FSP N = 3
+    tasks = report.split("# tasks", 1)[1]
+    assert re.search(r"\(\s+PID\)\s+314[789]\s", tasks), tasks
+    assert "| expected | 0.953 | 0.953 |" in report
+    assert "| 115200 | 2083 | 480 |" in report
+    assert not (out / "table1.md").exists()  # one report
     data = json.loads((out / "table1.json").read_text())
     assert [r["protocol"] for r in data["recordings"]] == ["FSP", "MSP"]
     assert all(r["stats"]["intervals"] > 0 for r in data["recordings"])
     assert set(data["paper"]) == {"FSP", "MSP"}
-    for label in ("FSP  ", "FSP: the paper", "MSP  ", "MSP: the paper", "not available"):
+    for label in ("FSP  ", "FSP: the paper", "FSP − the paper", "MSP  ", "MSP: the paper"):
         assert label in stdout
     assert "RAW_IMU" in stdout  # what the MSP poll asked and got
 

@@ -22,8 +22,10 @@ import pytest
 
 from wftool.fc.cli_session import CliSession
 from wftool.fc.msp import MspClient
+from wftool.fc.tasks import parse_tasks
 from wftool.fsp import FspReader, StatePacket
 from wftool.fsp.schedule import frame_rate_hz, lockstep_interval
+from wftool.sitl.process import VirtualBoard
 from wftool.sitl.session import Motion, VirtualFcSession
 
 pytestmark = pytest.mark.slow
@@ -54,6 +56,11 @@ class Collector(threading.Thread):
         self.reader.close()
 
 
+def task_rates(session: CliSession) -> dict[str, int]:
+    """Task name -> the rate the FC's `tasks` reports."""
+    return {name: row.rate_hz for name, row in parse_tasks(session.run("tasks")).items()}
+
+
 def declared_rates(tree: Path) -> dict[str, int]:
     """Task name -> the rate its DEFINE_TASK declares, where that is a number."""
     rates = {}
@@ -61,18 +68,6 @@ def declared_rates(tree: Path) -> dict[str, int]:
         if match := _DECLARED.search(line):
             name, sub, hz = match.groups()
             rates[f"{name}/{sub}" if sub else name] = int(hz)
-    return rates
-
-
-def task_rates(output: str) -> dict[str, int]:
-    """Task name -> rate/hz from the CLI's `tasks` table (two SYSTEM rows: LOAD, UPDATE)."""
-    rates: dict[str, int] = {}
-    for line in output.splitlines():
-        if match := re.match(r"\d+ - \(\s*(\w+)\)\s+(\d+)", line.strip()):
-            name, hz = match.group(1), int(match.group(2))
-            if name == "SYSTEM":
-                name = "SYSTEM/LOAD" if "SYSTEM/LOAD" not in rates else "SYSTEM/UPDATE"
-            rates[name] = hz
     return rates
 
 
@@ -93,7 +88,7 @@ def test_every_task_runs_at_its_configured_rate(
     session = CliSession.open(moving_fc.msp_url)  # left open: `exit` would reboot the FC
     try:
         serial_hz = int(session.get("serial_update_rate_hz").value)
-        measured = task_rates(session.run("tasks"))
+        measured = task_rates(session)
     finally:
         session.close()
         collector.stop()
@@ -142,6 +137,39 @@ def test_frames_are_one_lockstep_interval_apart_with_nothing_dropped(
     assert {b - a for a, b in pairwise(times)} == {period}
 
 
+def test_a_gyro_clock_of_its_own_sets_the_loop_rate_and_micros_truncates(
+    sitl_binary: Path, tmp_path: Path
+) -> None:
+    """A board's gyro runs off its own oscillator: the paper's BMI270 reports 3200 Hz and its
+    scheduler 3148 Hz (§5.1). The loop locks onto the samples, FC time stays exact and
+    micros() truncates it, as a timer does: fsp_rate_hz 1100 takes every 3rd iteration, so
+    frames are 3/3148 s apart, each interval 952 or 953 µs, and their mean is exact."""
+    clock_hz = 3148
+    board = VirtualBoard(gyro_hz=3200, gyro_clock_hz=clock_hz)
+    with VirtualFcSession(sitl_binary, tmp_path, port_base=None, board=board) as fc:
+        collector = Collector(fc.fsp_url)
+        collector.start()
+        time.sleep(SETTLE_S)
+        collector.stop()
+        with MspClient.open(fc.msp_url) as msp:
+            period_us = msp.pid_looptime_us(256)  # 317 or 318 µs a read
+        session = CliSession.open(fc.msp_url)  # left open: `exit` would reboot the FC
+        try:
+            measured = task_rates(session)
+        finally:
+            session.close()
+
+    assert abs(period_us - 1e6 / clock_hz) < 0.25
+    times = [frame.time_us for p in collector.packets for frame in p.frames]
+    assert len(times) > 4000
+    assert {b - a for a, b in pairwise(times)} == {952, 953}
+    period_us = 3 * 1e6 / clock_hz
+    assert abs((times[-1] - times[0]) / (len(times) - 1) - period_us) < 1 / (len(times) - 1)
+    # the FC's own scheduler: rates from moving averages of truncated µs deltas
+    for name, hz in (("GYRO", clock_hz), ("PID", clock_hz), ("FSP", clock_hz / 3)):
+        assert abs(measured[name] - hz) <= 0.001 * hz + 1, (name, measured[name])
+
+
 def test_msp_is_served_at_the_serial_rate_asked_for(sitl_binary: Path, tmp_path: Path) -> None:
     """The paper's MSP baseline polls at 1 kHz: with serial_update_rate_hz = 1000 the SERIAL
     task, which answers MSP, runs at 1 kHz."""
@@ -153,7 +181,7 @@ def test_msp_is_served_at_the_serial_rate_asked_for(sitl_binary: Path, tmp_path:
         time.sleep(2.0)
         session = CliSession.open(fc.msp_url)
         try:
-            serial_hz = task_rates(session.run("tasks"))["SERIAL"]
+            serial_hz = task_rates(session)["SERIAL"]
         finally:
             session.close()
     assert abs(serial_hz - 1000) <= RATE_TOLERANCE * 1000

@@ -9,14 +9,14 @@ from pathlib import Path
 import pytest
 
 from wftool.errors import SitlError
-from wftool.sitl.truth import TrueClock, read_anchors
+from wftool.sitl.truth import TrueClock, lateness_between, read_anchors, read_lateness
 
 U32 = 1 << 32
 
 
-def anchor(fc_us: int, monotonic_ns: int, reason: str = "start") -> str:
+def anchor(fc_us: int, monotonic_ns: int, reason: str = "start", step_us: str = "125.000") -> str:
     return (
-        f"[SITL] lockstep anchor: fc_us={fc_us} monotonic_ns={monotonic_ns} step_us=125 "
+        f"[SITL] lockstep anchor: fc_us={fc_us} monotonic_ns={monotonic_ns} step_us={step_us} "
         f"reason={reason}\n"
     )
 
@@ -33,10 +33,11 @@ def test_maps_fc_time_through_the_latest_anchor_before_it(tmp_path: Path) -> Non
         "bind port 5761 for UART1\n",
         anchor(500_000, 10_000_000_000),
         "[NEW]UART1: 1,1\n",
-        anchor(3_000_000, 12_600_000_000, "host-lag"),  # the host fell 100 ms behind
+        anchor(3_000_000, 12_600_000_000, "host-lag", "317.662"),  # the host fell 100 ms behind
     )
     clock = TrueClock(log)
     assert [a.reason for a in clock.anchors] == ["start", "host-lag"]
+    assert [a.step_us for a in clock.anchors] == [125.0, 317.662]  # a gyro clock of its own
     assert clock.monotonic(500_000) == pytest.approx(10.0, abs=1e-12)
     assert clock.monotonic(2_999_875) == pytest.approx(12.499875, abs=1e-12)
     assert clock.monotonic(3_000_000) == pytest.approx(12.6, abs=1e-12)
@@ -93,3 +94,44 @@ def test_a_log_without_anchors_is_a_clear_error(tmp_path: Path) -> None:
         TrueClock(log)
     with pytest.raises(SitlError, match="cannot read"):
         TrueClock(tmp_path / "missing.log")
+
+
+def lateness(fc_us: int, waits: int, over: tuple[int, int, int, int], max_us: int) -> str:
+    counts = " ".join(f"over_{b}us={n}" for b, n in zip((100, 250, 500, 1000), over, strict=True))
+    return f"[SITL] lockstep lateness: fc_us={fc_us} waits={waits} {counts} max_us={max_us}\n"
+
+
+def test_lateness_totals_of_the_latest_process_and_their_differences(tmp_path: Path) -> None:
+    log = write(
+        tmp_path / "sitl.log",
+        lateness(500_000, 1, (0, 0, 0, 0), 20),
+        lateness(10_500_000, 50_000, (900, 300, 100, 40), 4000),
+        "[system]Reset!\n",  # a new process: its totals start again
+        lateness(480_000, 1, (0, 0, 0, 0), 12),
+        lateness(10_480_000, 40_000, (100, 20, 5, 1), 1100),
+        lateness(20_480_000, 90_000, (300, 50, 15, 2), 1300),
+    )
+    totals = read_lateness(log)
+    assert [t.fc_us for t in totals] == [480_000, 10_480_000, 20_480_000]
+    window = totals[2].since(totals[1])
+    assert (window.waits, window.over_us, window.max_us) == (
+        50_000,
+        {100: 200, 250: 30, 500: 10, 1000: 1},
+        1300,
+    )
+
+
+def test_lateness_between_two_host_instants(tmp_path: Path) -> None:
+    """Totals logged every 10 s of FC time, told apart over the lines within the window."""
+    log = write(
+        tmp_path / "sitl.log",
+        anchor(500_000, 10_000_000_000),  # FC time 0.5 s is host 10 s
+        lateness(500_000, 1, (0, 0, 0, 0), 20),
+        lateness(10_500_000, 50_000, (900, 300, 100, 40), 4000),
+        lateness(20_500_000, 90_000, (1000, 320, 110, 41), 4000),
+        lateness(30_500_000, 140_000, (1500, 400, 150, 60), 6000),
+    )
+    window = lateness_between(log, 19.0, 31.0)  # host 20 s and 30 s: FC 10.5 s and 20.5 s
+    assert window is not None
+    assert (window.waits, window.over_us[500], window.over_us[1000]) == (40_000, 10, 1)
+    assert lateness_between(log, 19.0, 25.0) is None  # one line within: nothing to tell apart

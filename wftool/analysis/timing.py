@@ -6,7 +6,6 @@ against the MSP baseline (reception times), per recording and its longest segmen
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
@@ -14,7 +13,7 @@ from typing import Any, Final
 import numpy as np
 
 from wftool import __version__
-from wftool.analysis.published import NOT_AVAILABLE, TABLE1, Published
+from wftool.analysis.published import PAPER, TABLE1
 from wftool.errors import UsageError
 from wftool.fc.msp import Cmd
 from wftool.fsp.columns import StateColumns, decode_columns
@@ -134,20 +133,25 @@ class Samples:
 
 
 def load_timing(
-    path: Path, expected_rate_hz: float | None = None, label: str | None = None
+    path: Path,
+    expected_rate_hz: float | None = None,
+    label: str | None = None,
+    obc_clock: str | None = None,
 ) -> TimingSeries:
     """`path`'s sample intervals: a recording (FSP or MSP, a bag directory or MCAP file) or
     a raw FSP capture. Empty, damaged or foreign input is a one-line `UsageError`; a
-    recording whose writer was killed is analysed as far as it goes, and says so."""
-    samples = read_samples(path)
+    recording whose writer was killed is analysed as far as it goes, and says so.
+    `obc_clock` (an FSP recording): the frames' capture times on the OBC clock as that
+    estimator aligns them (`wftool.fsp.estimators`), instead of the FC's own."""
+    samples = read_samples(path, obc_clock)
     expected_us = 1e6 / expected_rate_hz if expected_rate_hz else samples.expected_us
     return analyse(samples, str(path), label or f"{samples.protocol}: {path.name}", expected_us)
 
 
-def read_samples(path: Path) -> Samples:
-    """The sample times in `path`, whatever kind of input it is."""
+def read_samples(path: Path, obc_clock: str | None = None) -> Samples:
+    """The sample times in `path`, whatever kind of input it is (see `load_timing`)."""
     if path.is_dir():
-        return _recording_samples(path)
+        return _recording_samples(path, obc_clock)
     try:
         with open(path, "rb") as handle:
             head = handle.read(len(_MCAP_MAGIC))
@@ -156,18 +160,23 @@ def read_samples(path: Path) -> Samples:
     if not head:
         raise UsageError(f"{path} is empty")
     if head == _MCAP_MAGIC:
-        return _recording_samples(path)
+        return _recording_samples(path, obc_clock)
+    if obc_clock is not None:
+        raise UsageError(f"{path} is a capture without arrival times: no OBC clock to align")
     return _capture_samples(path)
 
 
-def _recording_samples(path: Path) -> Samples:
+def _recording_samples(path: Path, obc_clock: str | None = None) -> Samples:
     topics = recording.recording_topics(path)
     if EVENT_TOPIC in topics:
         reader = recording.RecordingReader(path)
-        columns = recording.recording_columns(reader)
+        columns = recording.recording_columns(reader, obc_clock)
         if not len(columns):
             raise UsageError(f"{path} holds no FSP frames")
-        samples = _fsp_samples(path, columns, _rate_us(reader.metadata.get("expected_rate_hz")))
+        expected_us = _rate_us(reader.metadata.get("expected_rate_hz"))
+        samples = _fsp_samples(path, columns, expected_us, obc_clock)
+    elif obc_clock is not None:
+        raise UsageError(f"{path} is no FSP recording: no FC times to align to the OBC clock")
     elif msp_recording.EVENT_TOPIC in topics:
         reader = recording.RecordingReader(
             path, msp_recording.EVENT_TOPIC, msp_recording.METADATA_NAME
@@ -215,10 +224,14 @@ def _capture_samples(path: Path) -> Samples:
     return _fsp_samples(path, columns, None)
 
 
-def _fsp_samples(path: Path, columns: StateColumns, expected_us: float | None) -> Samples:
+def _fsp_samples(
+    path: Path, columns: StateColumns, expected_us: float | None, obc_clock: str | None = None
+) -> Samples:
     """The frames of the packets the decoder booked (outliers are not the stream's), and
     which intervals are the FC's own: all within a packet; between packets, those of one
-    epoch with, under E1, the next `seq` and no frame dropped between (as `verify`)."""
+    epoch with, under E1, the next `seq` and no frame dropped between (as `verify`). With
+    `obc_clock`, their times on the OBC clock (intervals from a frame not yet aligned do not
+    count)."""
     booked = np.flatnonzero(~columns.outlier)
     if booked.size == 0:
         raise UsageError(f"{path}: no FSP packet follows the stream (all are outliers)")
@@ -234,10 +247,18 @@ def _fsp_samples(path: Path, columns: StateColumns, expected_us: float | None) -
     notes = []
     if outliers := int(np.count_nonzero(columns.outlier)):
         notes.append(f"{outliers} outlier packet(s) (not following the stream) left out")
+    clock, times = "FC sample time", columns.time_us[frames].astype(np.float64)
+    if obc_clock is not None:
+        clock, times = f"OBC time ({obc_clock})", columns.obc_time[frames] * 1e6
+        aligned = np.isfinite(times)
+        counts &= aligned[1:] & aligned[:-1]
+        times = np.where(aligned, times, np.nan)
+        if not aligned.any():
+            raise UsageError(f"{path}: no frame has an OBC time (no arrival times recorded)")
     return Samples(
         "FSP",
-        "FC sample time",
-        columns.time_us[frames].astype(np.float64),
+        clock,
+        times,
         np.zeros(frames.size, np.int64),
         np.repeat(epoch, 2),
         counts,
@@ -346,47 +367,47 @@ def _us(value: float | None) -> str:
 
 def table_rows(series: list[TimingSeries], paper: bool = False) -> list[dict[str, str]]:
     """Table 1 as rows of strings (`COLUMNS`); with `paper`, each recording's row is
-    followed by the paper's published row for its protocol (`wftool.analysis.published`)."""
+    followed by the paper's row for its protocol (`wftool.analysis.published`) and by ours
+    minus the paper's."""
     rows = []
     for one in series:
         stats = one.stats
-        values = (
-            one.label, one.clock, str(one.times_s.size), _us(one.expected_us),
-            _us(stats.mean_us), _us(stats.p50_us), _us(stats.p1_us), _us(stats.p99_us),
-            _us(stats.spread_us), _us(stats.rate_hz),
+        ours = (
+            one.expected_us, stats.mean_us, stats.p50_us, stats.p1_us, stats.p99_us,
+            stats.spread_us, stats.rate_hz,
         )  # fmt: skip
-        rows.append(dict(zip(COLUMNS, values)))
+        rows.append(
+            dict(zip(COLUMNS, (one.label, one.clock, str(one.times_s.size), *map(_us, ours))))
+        )
         published = TABLE1.get(one.protocol) if paper else None
         if published is None:
             continue
-        shown = [_published(figure) for figure in published.figures().values()]
-        rate = _published(published.mean_us, lambda mean_us: 1e6 / mean_us)
-        paper_row = (f"{published.protocol}: the paper", published.setup, "—", *shown, rate)
+        figures = [*published.figures().values(), published.rate_hz]
+        theirs = tuple(figure.value for figure in figures)
+        paper_row = (f"{published.protocol}: the paper", published.setup, "—", *map(_us, theirs))
         rows.append(dict(zip(COLUMNS, paper_row)))
+        differences = [None if a is None else a - b for a, b in zip(ours, theirs)]
+        rows.append(
+            dict(zip(COLUMNS, (f"{one.label} − the paper", "", "", *map(_signed, differences))))
+        )
     return rows
 
 
-def _published(figure: Published | None, convert: Callable[[float], float] = float) -> str:
-    if figure is None:
-        return NOT_AVAILABLE
-    return ("≈" if figure.approximate else "") + f"{convert(figure.value):.1f}"
+def _signed(value: float | None) -> str:
+    return "—" if value is None else f"{value:+.1f}"
 
 
 def table_notes(series: list[TimingSeries], paper: bool = False) -> list[str]:
-    """What the table's reader needs to know: cuts, and where published values come from."""
+    """What the table's reader needs to know: cuts, and where the paper's values stand."""
     notes = [f"{one.label}: {note}" for one in series for note in one.notes]
     if paper:
         for protocol in dict.fromkeys(one.protocol for one in series):
             row = TABLE1.get(protocol)
-            if row is None:
-                continue
-            for name, figure in row.figures().items():
-                if figure is not None:
-                    notes.append(f"paper's {protocol} {name.removesuffix('_us')}: {figure.source}")
-        notes.append(
-            "the paper's own Table 1 is not in this repository and could not be found from "
-            "here: figures not known are 'not available', never estimated"
-        )
+            if row is not None:
+                notes.append(
+                    f"the paper's {protocol} row: {PAPER}, {row.expected_us.source} (ms, given "
+                    f"to three decimals); its rate: {row.rate_hz.source}"
+                )
     return notes
 
 
@@ -425,14 +446,8 @@ def write_table(
             protocol: {
                 "setup": row.setup,
                 **{
-                    name: None
-                    if figure is None
-                    else {
-                        "value": figure.value,
-                        "approximate": figure.approximate,
-                        "source": figure.source,
-                    }
-                    for name, figure in row.figures().items()
+                    name: {"value": figure.value, "source": figure.cite()}
+                    for name, figure in {**row.figures(), "rate_hz": row.rate_hz}.items()
                 },
             }
             for protocol, row in TABLE1.items()

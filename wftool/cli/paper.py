@@ -34,7 +34,7 @@ def paper_group() -> None:
     type=click.Path(file_okay=False, path_type=Path),
     default=Path("paper-timing"),
     show_default=True,
-    help="Directory for the recordings, Table 1 and Figs. 2-4 (must not hold a run yet).",
+    help="Directory for report.md, the recordings and Figs. 2-4 (must not hold a run yet).",
 )
 @click.option("--port", "msp_url", metavar="URL",
               help="A board's MSP/CLI port (with --fsp-port) [the virtual FC].")  # fmt: skip
@@ -59,6 +59,24 @@ def paper_group() -> None:
               help="Leave a board's serial_update_rate_hz as it is.")  # fmt: skip
 @click.option("--window", type=click.IntRange(1, 64), default=DEFAULT_WINDOW, show_default=True,
               help="MSP requests in flight at most (see wftool record msp).")  # fmt: skip
+@click.option(
+    "--msp-baud",
+    type=click.IntRange(9600, 2470000),
+    help="The MSP port's baud rate: set on the virtual FC [921600: the paper does not state "
+    "it]; a board's port is opened at it [115200].",
+)
+@click.option(
+    "--msp-baud-sweep",
+    metavar="BAUD,…",
+    help="The virtual FC's MSP polled again at these baud rates, to show how the MSP figures "
+    "move with it ('' for none) [115200,1000000].",
+)
+@click.option(
+    "--stock-sitl",
+    is_flag=True,
+    help="The virtual FC as the SITL is (8 kHz loop, UARTs as fast as TCP) instead of the "
+    "paper's board (3148 Hz loop, UARTs at their baud rates).",
+)
 @click.option("--no-accfilter", is_flag=True,
               help="Leave out the filter harness's Fig. 4 (it needs a C compiler).")  # fmt: skip
 @click.option(
@@ -69,26 +87,43 @@ def paper_group() -> None:
 @project_option
 def timing_command(
     duration: float, out_dir: Path, msp_url: str | None, fsp_url: str | None, fsp_baud: int,
-    fsp_rate: int, serial_rate: int, keep_serial_rate: bool, window: int, no_accfilter: bool,
-    binary: Path | None, project_dir: Path | None,
+    fsp_rate: int, serial_rate: int, keep_serial_rate: bool, window: int, msp_baud: int | None,
+    msp_baud_sweep: str | None, stock_sitl: bool, no_accfilter: bool, binary: Path | None,
+    project_dir: Path | None,
 ) -> None:  # fmt: skip
-    """Table 1 and Figs. 2-4 on one FC: an FSP recording, then an MSP recording.
+    """Table 1 and Figs. 2-4 on one FC: an FSP recording, then an MSP recording, and
+    report.md: ours beside the paper's, row by row, each difference explained.
 
-    The virtual FC by default (built if needed; serial_update_rate_hz 1000, synthetic
-    motion), or a board with --port and --fsp-port. Prints Table 1 beside the paper's
-    published values (those this project knows; the rest "not available") and writes
-    table1.md, table1.json, fig2-histograms.png, fig3-intervals.png, fig4-fsp-spectrum.png
-    and fig4-accfilter-spectrum.png with the recordings (fsp/, msp/, accfilter/).
+    The virtual FC by default, as the paper's board (a 3148 Hz loop from a 3.2 kHz gyro,
+    serial_update_rate_hz 1000, UARTs at their baud rates, synthetic motion; built if
+    needed), its MSP then polled again at the --msp-baud-sweep rates; or a board with --port
+    and --fsp-port. Writes report.md, table1.json, fig2-histograms.png, fig3-intervals.png,
+    fig4-fsp-spectrum.png and fig4-accfilter-spectrum.png with the recordings (fsp/, msp/,
+    msp-BAUD/, accfilter/). The FC is asked for its `tasks` and `status` at the end, which
+    resets it (leaving the CLI does).
     """
     require("analysis", *PLOTTING, what="paper timing")
+    from wftool.analysis.setup import MSP_BAUD_SWEEP, PAPER_BOARD
     from wftool.cli.sitl import build_sitl
     from wftool.paper import Board, run_timing
+    from wftool.sitl.process import SITL_BOARD
 
     if (msp_url is None) != (fsp_url is None):
         raise UsageError("a board needs both --port (MSP/CLI) and --fsp-port")
     if keep_serial_rate and msp_url is None:
         raise UsageError("--keep-serial-rate is for a board (--port); the virtual FC is set up")
     board = Board(msp_url, fsp_url, fsp_baud) if msp_url and fsp_url else None
+    try:
+        sweep = (
+            list(MSP_BAUD_SWEEP)
+            if msp_baud_sweep is None
+            else [int(text) for text in msp_baud_sweep.split(",") if text.strip()]
+        )
+    except ValueError:
+        raise UsageError(f"--msp-baud-sweep takes baud rates separated by commas, not "
+                         f"{msp_baud_sweep!r}") from None  # fmt: skip
+    if any(not 9600 <= baud <= 2470000 for baud in sweep):
+        raise UsageError("--msp-baud-sweep: each baud rate must be 9600-2470000")
     if board is None and binary is None:
         binary = build_sitl(project_dir)
     run = run_timing(
@@ -101,6 +136,9 @@ def timing_command(
         window=window,
         project_dir=project_dir,
         with_accfilter=not no_accfilter,
+        virtual_board=SITL_BOARD if stock_sitl else PAPER_BOARD,
+        msp_baud=msp_baud,
+        msp_baud_sweep=sweep if board is None else (),
         log=lambda message: err.print(shown(message, "dim")),
     )
     summary = run.fsp.summary

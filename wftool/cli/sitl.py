@@ -15,7 +15,14 @@ from wftool.display import shown
 from wftool.errors import UsageError
 from wftool.fsp import DEFAULT_BAUDRATE
 from wftool.fsp.schedule import DEFAULT_RATE_HZ, RATE_HZ_MAX, RATE_HZ_MIN
-from wftool.sitl.process import DEFAULT_PORT_BASE, MAX_PORT_BASE, SIM_PORT_OFFSET
+from wftool.sitl.process import (
+    DEFAULT_PORT_BASE,
+    GYRO_HZ_MAX,
+    GYRO_HZ_MIN,
+    MAX_PORT_BASE,
+    SIM_PORT_OFFSET,
+    VirtualBoard,
+)
 from wftool.verify.live import check_duration
 from wftool.verify.session import VerifySession
 
@@ -55,6 +62,35 @@ rate_option = click.option(
     "unless --clock says otherwise.",
 )
 @click.option(
+    "--paper",
+    is_flag=True,
+    help="As the paper's board: a gyro reporting 3200 Hz whose samples come at 3148 Hz, UARTs "
+    "at their baud rates, serial_update_rate_hz 1000, the MSP port at 921600 baud (the "
+    "options below override).",
+)
+@click.option(
+    "--gyro-hz",
+    type=click.IntRange(GYRO_HZ_MIN, GYRO_HZ_MAX),
+    help="The sample rate the virtual gyro reports; the FC's looptime follows from it [8000].",
+)
+@click.option(
+    "--gyro-clock-hz",
+    type=click.FloatRange(GYRO_HZ_MIN, GYRO_HZ_MAX),
+    help="The rate its samples really come at, which the PID loop locks onto (a board's gyro "
+    "runs off its own oscillator) [as --gyro-hz].",
+)
+@click.option(
+    "--uart-pacing",
+    is_flag=True,
+    help="UARTs move bytes at their baud rate in FC time, 10 bits a byte, both ways, as wires "
+    "do [as fast as TCP].",
+)
+@click.option(
+    "--msp-baud",
+    type=click.IntRange(9600, 2470000),
+    help="The MSP port's baud rate (UART1; it counts with --uart-pacing) [115200].",
+)
+@click.option(
     "--verify",
     "verify_s",
     type=float,
@@ -86,6 +122,8 @@ rate_option = click.option(
 @node_options
 def sitl(
     binary: Path | None, workdir: Path | None, rate_hz: int, motion: bool, time_reply: bool,
+    paper: bool, gyro_hz: int | None, gyro_clock_hz: float | None, uart_pacing: bool,
+    msp_baud: int | None,
     verify_s: float | None, port_base: int, project_dir: Path | None, ros2: bool,
     **options: Any,
 ) -> None:  # fmt: skip
@@ -109,9 +147,22 @@ def sitl(
     if binary is None:
         binary = build_sitl(project_dir)
     workdir = workdir or Path(tempfile.mkdtemp(prefix="wftool-sitl-"))
+    board = VirtualBoard(gyro_hz, gyro_clock_hz, uart_pacing)
+    serial_update_rate_hz = None
+    if paper:
+        from wftool.analysis.setup import PAPER_BOARD, PAPER_MSP_BAUD, SERIAL_RATE_HZ
+
+        board = VirtualBoard(
+            gyro_hz or PAPER_BOARD.gyro_hz,
+            gyro_clock_hz or PAPER_BOARD.gyro_clock_hz,
+            True,
+        )
+        msp_baud = msp_baud or PAPER_MSP_BAUD
+        serial_update_rate_hz = SERIAL_RATE_HZ
     session = VirtualFcSession(
         binary, workdir, rate_hz=rate_hz, motion=Motion() if motion else None,
-        port_base=port_base or None, time_reply=time_reply,
+        port_base=port_base or None, time_reply=time_reply, board=board, msp_baud=msp_baud,
+        serial_update_rate_hz=serial_update_rate_hz,
     )  # fmt: skip
     err.print(shown(f"starting the virtual FC in {workdir} …"))
     with session:

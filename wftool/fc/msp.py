@@ -286,6 +286,11 @@ class FcIdentity:
     build: BuildInfo
 
 
+PID_PERIOD_SAMPLES = 200
+"""MSP_STATUS reads `pid_looptime_us` averages: ±0.05 µs for a loop of a fractional period
+(0.2 s at a 1 kHz serial task, 2 s at Betaflight's default 100 Hz)."""
+
+
 class MspClient:
     """Request/reply MSP over an open link. One request in flight at a time."""
 
@@ -415,23 +420,20 @@ class MspClient:
         """The PID loop period the FC measures (MSP_STATUS); 0 while the loop does not run."""
         return _Fields(Cmd.STATUS, self.request(Cmd.STATUS)).unpack("H")[0]
 
-    def pid_looptime_us(self, reads: int = 9, spacing_s: float = 0.01) -> float:
-        """The PID loop's period: the mean of `reads` MSP_STATUS reads within 5 % of their
-        median. One read is only the latest interval between two PID runs, which a single
-        late run makes anything; the mean keeps a period that is no whole number of µs
-        (3148 Hz: 317 and 318 µs). `MspError` if the loop does not run."""
-        cycles = []
-        for index in range(reads):
-            if index:
-                time.sleep(spacing_s)
-            cycles.append(self.pid_cycle_us())
-        median = statistics.median(cycles)
+    def pid_looptime_us(self, samples: int = PID_PERIOD_SAMPLES) -> float:
+        """The PID loop's mean period: `pid_cycle_us` (only the latest period, in whole µs as
+        the FC's timer truncates it: 317 or 318 for a 3148 Hz loop) averaged over `samples`
+        reads, those more than 5 % (at least 1 µs) from their median left out (a period a
+        late run stretched is not the loop's); `MspError` if the loop does not run."""
+        periods = [self.pid_cycle_us() for _ in range(samples)]
+        median = statistics.median(periods)
         if median == 0:
             raise MspError(
                 f"the FC on {self.link.port or 'its link'} reports no PID loop running "
                 "(cycle time 0 in MSP_STATUS): its frame rate cannot be known"
             )
-        return statistics.fmean(cycle for cycle in cycles if abs(cycle - median) <= 0.05 * median)
+        band = max(1.0, 0.05 * median)
+        return statistics.fmean(period for period in periods if abs(period - median) <= band)
 
     def features(self) -> int:
         """The configured feature bit mask (takes effect at boot)."""

@@ -12,6 +12,7 @@ import signal
 import socket
 import subprocess
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 from wftool.errors import PortInUseError, SitlError
@@ -29,6 +30,54 @@ MAX_PORT_BASE = 65535 - SIM_PORT_OFFSET - UART_COUNT
 START_ATTEMPTS = 3
 ACCEPT_TIMEOUT_S = 3.0
 LOOP_TIMEOUT_S = 3.0
+GYRO_HZ_MIN, GYRO_HZ_MAX = 100, 32000
+"""The gyro rates the SITL takes (sitl_options.c)."""
+
+
+@dataclass(frozen=True)
+class VirtualBoard:
+    """What the virtual FC emulates of a board's hardware: the SITL's own options."""
+
+    gyro_hz: int | None = None
+    """The sample rate its gyro reports, from which the FC takes its looptime (None: the
+    SITL's virtual gyro, 8000 Hz)."""
+    gyro_clock_hz: float | None = None
+    """The rate the gyro's samples really come at, which the PID loop locks onto, as on a
+    board whose gyro runs off its own oscillator (None: the reported rate)."""
+    uart_pacing: bool = False
+    """UARTs move bytes at their baud rate in FC time, 10 bits a byte, both ways (off: as fast
+    as TCP)."""
+
+    def __post_init__(self) -> None:
+        for name in ("gyro_hz", "gyro_clock_hz"):
+            value = getattr(self, name)
+            if value is not None and not GYRO_HZ_MIN <= value <= GYRO_HZ_MAX:
+                raise SitlError(f"{name} must be {GYRO_HZ_MIN}-{GYRO_HZ_MAX} Hz, not {value}")
+
+    def argv(self) -> list[str]:
+        """The SITL's command-line options for this board."""
+        args = []
+        if self.gyro_hz is not None:
+            args.append(f"--gyro-hz={self.gyro_hz}")
+        if self.gyro_clock_hz is not None:
+            args.append(f"--gyro-clock-hz={self.gyro_clock_hz:.3f}")
+        if self.uart_pacing:
+            args.append("--uart-pacing")
+        return args
+
+
+SITL_BOARD = VirtualBoard()
+"""The SITL as it is: its virtual gyro at 8000 Hz, UARTs as fast as TCP."""
+
+
+def exit_status(status: int) -> str:
+    """A process's exit status in words: "status 1", "SIGSEGV"."""
+    if status < 0:
+        try:
+            return signal.Signals(-status).name
+        except ValueError:
+            return f"signal {-status}"
+    return f"status {status}"
 
 
 def uart_url(uart: int, port_base: int = DEFAULT_PORT_BASE) -> str:
@@ -83,8 +132,10 @@ class VirtualFC:
         *,
         port_base: int | None = DEFAULT_PORT_BASE,
         ready_timeout: float = 20.0,
+        board: VirtualBoard = SITL_BOARD,
     ) -> None:
         self.binary = Path(binary).resolve()
+        self.board = board
         self.workdir = Path(workdir)
         self._fixed_base = port_base is not None
         self._port_base = port_base
@@ -160,6 +211,7 @@ class VirtualFC:
             f"--port-base={self.port_base}",
             f"--sim-port-base={self.port_base + SIM_PORT_OFFSET}",
             "--exit-with-parent",
+            *self.board.argv(),
         ]
 
     def _spawn(self) -> None:
@@ -221,7 +273,9 @@ class VirtualFC:
             status = self._process.poll()
             if status is not None:
                 self._process = None
-                raise SitlError(f"SITL exited with status {status} while starting: {self.log_path}")
+                raise SitlError(
+                    f"SITL ended with {exit_status(status)} while starting: {self.log_path}"
+                )
             if time.monotonic() > deadline:
                 return None
             time.sleep(0.01)
@@ -254,10 +308,13 @@ class VirtualFC:
         """
         if self._process is not None:
             try:
-                self._process.wait(timeout)
+                status = self._process.wait(timeout)
             except subprocess.TimeoutExpired as exc:
                 raise SitlError(f"SITL did not reset within {timeout:.0f} s") from exc
             self._process = None
+            if status != 0:  # a reset exits with 0: anything else is a crash, not to be hidden
+                raise SitlError(f"SITL ended with {exit_status(status)} instead of resetting: "
+                                f"{self.log_path}")  # fmt: skip
         self.start()
 
     def __enter__(self) -> VirtualFC:

@@ -1,9 +1,10 @@
 """The virtual FC: the patched SITL running with FSP configured, optionally in motion.
 
 `VirtualFcSession` is what `wftool sitl` and the end-to-end tests start: a `VirtualFC`
-process in a scratch directory, FSP put on UART2 through the CLI with the same safe
-workflow a lab uses on hardware, and — on request — synthetic IMU motion fed through
-SITL's simulator input (UDP 9003), so the stream carries moving values.
+process in a scratch directory (emulating a `VirtualBoard`), FSP put on UART2 through the CLI
+with the same safe workflow a lab uses on hardware (and, on request, the MSP port's baud
+rate, which counts once its UARTs are paced), and — on request — synthetic IMU motion fed
+through SITL's simulator input (UDP 9003), so the stream carries moving values.
 """
 
 from __future__ import annotations
@@ -14,17 +15,26 @@ import struct
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
-from wftool.fc.fsp_setup import fsp_planner
+from wftool.fc.cli_session import CliSession
+from wftool.fc.fsp_setup import SerialPortConfig, fsp_planner
 from wftool.fc.msp import MspClient
-from wftool.fc.params import apply_plan
+from wftool.fc.params import Command, Plan, Planner, apply_plan
 from wftool.fsp import DEFAULT_BAUDRATE
 from wftool.fsp.schedule import DEFAULT_RATE_HZ, frame_rate_hz
-from wftool.sitl.process import DEFAULT_PORT_BASE, LOOPBACK, VirtualFC
+from wftool.sitl.process import (
+    DEFAULT_PORT_BASE,
+    LOOPBACK,
+    SITL_BOARD,
+    VirtualBoard,
+    VirtualFC,
+)
 
 FSP_UART = 2
+MSP_UART = 1
+"""The SITL's MSP and CLI port (its only serial function by default)."""
 GRAVITY = 9.80665
 
 
@@ -118,6 +128,19 @@ class MotionFeeder:
                 self._stop.wait(max(0.0, next_send - time.monotonic()))
 
 
+def with_msp_baud(planner: Planner, baud: int) -> Planner:
+    """`planner`, and the MSP port's baud rate set to `baud` as well."""
+
+    def plan(session: CliSession) -> Plan:
+        planned = planner(session)
+        for config in map(SerialPortConfig.parse, session.run("serial").splitlines()):
+            if config.port == f"UART{MSP_UART}" and config.msp_baud != baud:
+                planned.commands.append(Command(replace(config, msp_baud=baud).command()))
+        return planned
+
+    return plan
+
+
 class VirtualFcSession:
     """The patched SITL with FSP on UART2; a context manager that never leaves a process."""
 
@@ -132,11 +155,15 @@ class VirtualFcSession:
         port_base: int | None = DEFAULT_PORT_BASE,
         time_reply: bool = False,
         serial_update_rate_hz: int | None = None,
+        board: VirtualBoard = SITL_BOARD,
+        msp_baud: int | None = None,
     ) -> None:
         """`time_reply`: the FC answers each command with a time reply (spec §10);
         `port_base=None`: any free ports (see `VirtualFC`); `serial_update_rate_hz` None:
-        the highest the FC allows (as `configure fsp`)."""
-        self.fc = VirtualFC(binary, workdir, port_base=port_base)
+        the highest the FC allows (as `configure fsp`); `msp_baud` None: the MSP port's as
+        it is (115200)."""
+        self.fc = VirtualFC(binary, workdir, port_base=port_base, board=board)
+        self.msp_baud = msp_baud
         self.workdir = workdir
         self._baud = baud
         self.rate_hz = rate_hz
@@ -165,6 +192,8 @@ class VirtualFcSession:
             planner = fsp_planner(
                 FSP_UART, self._baud, self.rate_hz, self.time_reply, self.serial_update_rate_hz
             )
+            if self.msp_baud is not None:
+                planner = with_msp_baud(planner, self.msp_baud)
             apply_plan(self.fc, planner, self.workdir / "backups")
             if self._motion is not None:  # the ports are known once the FC runs
                 self._feeder = MotionFeeder(self._motion, self.fc.sim_state_port)
@@ -173,6 +202,11 @@ class VirtualFcSession:
             self.fc.stop()
             raise
         return self
+
+    def set_msp_baud(self, baud: int) -> None:
+        """Give the MSP port another baud rate, saved: the FC restarts with it."""
+        apply_plan(self.fc, with_msp_baud(lambda session: Plan([]), baud), self.workdir / "backups")
+        self.msp_baud = baud
 
     def serve(
         self,
@@ -208,7 +242,7 @@ class VirtualFcSession:
                 if not self.fc.running:
                     if on_reset is not None:
                         on_reset()
-                    self.fc.start()
+                    self.fc.wait_back()  # a crash is raised, not started again
         finally:
             stop.set()
             if thread is not None:

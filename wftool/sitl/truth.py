@@ -1,5 +1,5 @@
 """The virtual FC's true clock: the host `time.monotonic()` instant of every FC time, from the
-lockstep anchors the SITL logs (docs/design.md).
+lockstep anchors the SITL logs, and how late the host let it reach its instants (docs/design.md).
 
     TrueClock(fc.log_path).instant(frame.time_us)
 """
@@ -16,8 +16,14 @@ from wftool.errors import SitlError
 
 U32 = 1 << 32
 _ANCHOR = re.compile(
-    rb"\[SITL\] lockstep anchor: fc_us=(\d+) monotonic_ns=(\d+) step_us=(\d+) reason=([\w-]+)"
+    rb"\[SITL\] lockstep anchor: fc_us=(\d+) monotonic_ns=(\d+) step_us=([\d.]+) reason=([\w-]+)"
 )
+_LATENESS = re.compile(
+    rb"\[SITL\] lockstep lateness: fc_us=(\d+) waits=(\d+) over_100us=(\d+) over_250us=(\d+) "
+    rb"over_500us=(\d+) over_1000us=(\d+) max_us=(\d+)"
+)
+LATE_OVER_US = (100, 250, 500, 1000)
+"""The lateness bounds the SITL counts instants over."""
 _FUTURE_SLACK_US = 1_000_000
 """Lifting a u32 time: how far past the FC's present it may lie (it cannot: the FC never
 runs ahead of the host clock)."""
@@ -29,8 +35,41 @@ class Anchor:
 
     fc_us: int
     monotonic_ns: int
-    step_us: int
+    step_us: float
+    """The gyro period (exact to the ns: FC time need not move in whole µs)."""
     reason: str
+
+
+@dataclass(frozen=True)
+class Lateness:
+    """How late the host let the FC reach its instants: totals up to FC time `fc_us`."""
+
+    fc_us: int
+    waits: int
+    over_us: dict[int, int]
+    """Instants reached later than each of `LATE_OVER_US` µs."""
+    max_us: int
+    """The latest one so far (since the process started)."""
+
+    def since(self, earlier: Lateness) -> Lateness:
+        """The counts between `earlier` and this (its `max_us` stays the running maximum)."""
+        over = {bound: count - earlier.over_us[bound] for bound, count in self.over_us.items()}
+        return Lateness(self.fc_us, self.waits - earlier.waits, over, self.max_us)
+
+
+def read_lateness(log_path: Path) -> list[Lateness]:
+    """The lateness totals of the latest SITL process in `log_path` (see the module)."""
+    try:
+        text = log_path.read_bytes()
+    except OSError as exc:
+        raise SitlError(f"cannot read the SITL log {log_path}: {exc.strerror}") from None
+    totals: list[Lateness] = []
+    for match in _LATENESS.finditer(text):
+        fc_us, waits, *over, max_us = (int(group) for group in match.groups())
+        if totals and waits < totals[-1].waits:
+            totals = []  # a later process: its totals start again
+        totals.append(Lateness(fc_us, waits, dict(zip(LATE_OVER_US, over, strict=True)), max_us))
+    return totals
 
 
 def read_anchors(log_path: Path, offset: int = 0) -> tuple[list[Anchor], int]:
@@ -43,7 +82,7 @@ def read_anchors(log_path: Path, offset: int = 0) -> tuple[list[Anchor], int]:
         raise SitlError(f"cannot read the SITL log {log_path}: {exc.strerror}") from None
     whole = text.rfind(b"\n") + 1  # a line still being written is read next time
     anchors = [
-        Anchor(int(m[1]), int(m[2]), int(m[3]), m[4].decode())
+        Anchor(int(m[1]), int(m[2]), float(m[3]), m[4].decode())
         for m in _ANCHOR.finditer(text, 0, whole)
     ]
     return anchors, offset + whole
@@ -98,3 +137,13 @@ class TrueClock:
     def instant(self, fc_time_us: int, now: float | None = None) -> float:
         """The true host instant (s, `time.monotonic`) of an FC time known modulo 2^32."""
         return self.monotonic(self.micros64(fc_time_us, now))
+
+
+def lateness_between(log_path: Path, start: float, end: float) -> Lateness | None:
+    """How late the host ran the latest SITL process in `log_path` between host instants
+    `start` and `end` (`time.monotonic`): the totals logged within, told apart (None with
+    fewer than two lines within: they come every 10 s of FC time)."""
+    clock = TrueClock(log_path)
+    clock.refresh()
+    within = [t for t in read_lateness(log_path) if start <= clock.monotonic(t.fc_us) <= end]
+    return within[-1].since(within[0]) if len(within) >= 2 else None

@@ -1,0 +1,106 @@
+"""The virtual FC's UARTs as wires (`VirtualBoard(uart_pacing=True)`): each moves its bytes at
+its baud rate in FC time, 10 bits a byte, both ways.
+
+Judged against the SITL's true clock (`TrueClock`, the lockstep anchors) where the FC stamps
+something: an FSP packet reaches the OBC no sooner than its wire time after its newest frame
+was sampled, and the FC receives a command no sooner than its wire time after it was sent.
+MSP replies carry no FC time: four asked for at once arrive one after another, a reply's
+wire time apart, instead of together.
+"""
+
+from __future__ import annotations
+
+import socket
+import time
+from pathlib import Path
+
+import pytest
+
+from wftool.fc.msp import MspClient
+from wftool.fsp import DEFAULT_BAUDRATE, FspReader, StateDecoder, StatePacket
+from wftool.fsp.encoder import encode_command
+from wftool.fsp.packets import COMMAND_LENGTH, STATE_LENGTH, CommandPacket
+from wftool.fsp.twoway import RoundTrip
+from wftool.sitl.process import LOOPBACK, VirtualBoard
+from wftool.sitl.session import VirtualFcSession
+from wftool.sitl.truth import TrueClock
+
+pytestmark = pytest.mark.slow
+
+PACED = VirtualBoard(uart_pacing=True)
+BITS_PER_BYTE = 10
+COMMAND = (1500, 1500, 1500, 1000, 1000, 1000)
+MSP_BAUD = 115200
+MSP_RAW_IMU = 102
+RAW_IMU_REPLY = 6 + 18
+"""An MSPv1 reply: `$M>`, length, command, 9 × int16, checksum."""
+
+
+def wire_s(nbytes: int, baud: int) -> float:
+    return nbytes * BITS_PER_BYTE / baud
+
+
+def test_an_fsp_packet_arrives_its_wire_time_after_its_newest_sample(
+    sitl_binary: Path, tmp_path: Path
+) -> None:
+    packets: list[StatePacket] = []
+    with VirtualFcSession(sitl_binary, tmp_path, port_base=None, board=PACED) as fc:
+        with FspReader(fc.fsp_url) as reader:
+            until = time.monotonic() + 3.0
+            while time.monotonic() < until:
+                packets.extend(reader.read(0.05))
+        truth = TrueClock(fc.fc.log_path)
+    assert len(packets) > 1000
+    delays = [p.arrival_time - truth.instant(p.frames[-1].time_us) for p in packets[1:]]
+    # COBS adds at least one byte, the delimiter another; micros() truncates by < 1 µs
+    assert min(delays) >= wire_s(STATE_LENGTH + 2, DEFAULT_BAUDRATE) - 1e-6
+
+
+def test_the_fc_receives_a_command_its_wire_time_after_it_was_sent(
+    sitl_binary: Path, tmp_path: Path
+) -> None:
+    trips: list[RoundTrip] = []
+    session = VirtualFcSession(sitl_binary, tmp_path, port_base=None, board=PACED, time_reply=True)
+    with session, FspReader(session.fsp_url, decoder=StateDecoder("twoway")) as reader:
+        matcher = reader.decoder.round_trips
+        assert matcher is not None
+        matcher.on_round_trip = trips.append
+        while not reader.decoder.stats.packets:
+            reader.read(0.05)
+        for _ in range(100):
+            reader.send_command(COMMAND)
+            until = time.monotonic() + 0.02
+            while (left := until - time.monotonic()) > 0:
+                reader.read(left)
+        reader.read(0.3)
+        truth = TrueClock(session.fc.log_path)
+    assert len(trips) >= 95
+    wire = len(encode_command(CommandPacket(COMMAND)))
+    assert wire >= COMMAND_LENGTH + 2
+    waits = [truth.instant(trip.fc_received_us) - trip.obc_sent for trip in trips]
+    assert min(waits) >= wire_s(wire, DEFAULT_BAUDRATE) - 1e-6
+
+
+def test_msp_replies_asked_for_at_once_arrive_one_after_another(
+    sitl_binary: Path, tmp_path: Path
+) -> None:
+    request = bytes([*b"$M<", 0, MSP_RAW_IMU, MSP_RAW_IMU])  # checksum: length ^ command
+    session = VirtualFcSession(
+        sitl_binary, tmp_path, port_base=None, board=PACED, msp_baud=MSP_BAUD
+    )
+    with session:
+        with MspClient.open(session.msp_url) as msp:
+            assert msp.pid_cycle_us() > 0  # the FC answers at the new baud rate
+        host, port = session.msp_url.removeprefix("socket://").rsplit(":", 1)
+        assert host == LOOPBACK
+        with socket.create_connection((host, int(port)), timeout=2) as link:
+            link.sendall(request * 4)
+            received, done = b"", []
+            while len(done) < 4:
+                received += link.recv(4096)
+                while len(received) >= RAW_IMU_REPLY * (len(done) + 1):
+                    done.append(time.monotonic())
+    assert received[:3] == b"$M>" and received[4] == MSP_RAW_IMU
+    # three replies' wire times between the first and the last (a host that is late for the
+    # first one shortens this; unpaced, all four come within two serial task periods)
+    assert done[-1] - done[0] >= 2 * wire_s(RAW_IMU_REPLY, MSP_BAUD)
