@@ -11,13 +11,27 @@ import pytest
 
 from wftool.fsp import CommandDecoder, CommandPacket, SensorFrame, StateDecoder, StatePacket
 from wftool.fsp.crc import crc8
-from wftool.fsp.encoder import encode_command, encode_state, encode_time_reply
-from wftool.fsp.framing import STATE_E2_VERSIONS, Deframer, Rejection
+from wftool.fsp.encoder import (
+    encode_command,
+    encode_state,
+    encode_time_reply,
+    encode_uplink_status,
+)
+from wftool.fsp.framing import (
+    STATE_E2_VERSIONS,
+    STATE_VERSIONS,
+    STREAM_VERSIONS,
+    Deframer,
+    Rejection,
+)
 from wftool.fsp.packets import (
     TIME_REPLY_LENGTH,
     TimeReply,
+    UplinkFlag,
+    UplinkStatus,
     parse_state,
     parse_time_reply,
+    parse_uplink_status,
 )
 
 STATE_VECTORS = ["state_base", "state_e1_wrap", "state_mavlink"]
@@ -175,3 +189,82 @@ def test_plain_v5_decoder_rejects_each_time_reply_as_one_chunk(vectors_dir: Path
     assert decoder.stats.errors == decoder.stats.rejected[Rejection.LENGTH]
     assert decoder.stats.errors == plain["rejected_chunks"]
     assert (decoder.stats.lost_packets, decoder.stats.lost_frames) == (0, 0)
+
+
+# -- E3 uplink statuses: vectors written by the firmware's own C encoder (spec §12) -----------
+
+STATUS_FIELDS = (
+    "command_seq", "tx_time_us", "accepted", "stale", "timeouts", "rejected", "timeout_ms",
+    "flags", "failsafe_phase",
+)  # fmt: skip
+
+
+def status_as_json(status: UplinkStatus) -> dict[str, Any]:
+    return {"type": "uplink_status", "version": status.version} | {
+        name: getattr(status, name) for name in STATUS_FIELDS
+    }
+
+
+def decode_e3(wire: bytes) -> list[dict[str, Any]]:
+    """Every packet of a stream with uplink statuses, in order, as the vectors' JSON."""
+    deframer = Deframer(STREAM_VERSIONS)
+    decoded = [
+        {"type": "state"} | packet_as_json(parse_state(payload))
+        if len(payload) in (116, 180)
+        else status_as_json(parse_uplink_status(payload))
+        for payload in deframer.feed(wire)
+    ]
+    assert not any(deframer.rejected.values()), deframer.rejected
+    return decoded
+
+
+def encode_e3(packets: list[dict[str, Any]]) -> bytes:
+    return b"".join(
+        encode_uplink_status(UplinkStatus(*(p[name] for name in STATUS_FIELDS)))
+        if p["type"] == "uplink_status"
+        else encode_state(packet_from_json({k: v for k, v in p.items() if k != "type"}))
+        for p in packets
+    )
+
+
+@pytest.mark.parametrize("name", ["uplink_status", "uplink_status_stream"])
+def test_uplink_status_vector_decodes_exactly(vectors_dir: Path, name: str) -> None:
+    wire, expected = load(vectors_dir, name)
+    assert decode_e3(wire) == expected["packets"]
+
+
+@pytest.mark.parametrize("name", ["uplink_status", "uplink_status_stream"])
+def test_uplink_status_vector_encodes_byte_for_byte(vectors_dir: Path, name: str) -> None:
+    wire, expected = load(vectors_dir, name)
+    assert encode_e3(expected["packets"]) == wire
+
+
+def test_state_decoder_takes_uplink_statuses_between_the_packets(vectors_dir: Path) -> None:
+    wire, expected = load(vectors_dir, "uplink_status_stream")
+    decoder = StateDecoder()
+    seen: list[tuple[int, int]] = []  # (state packets so far, accepted) at each status
+    for byte in wire:  # byte by byte: a status completes between two state packets
+        before = decoder.uplink_status
+        decoder.feed(bytes([byte]))
+        if decoder.uplink_status is not before:
+            assert decoder.uplink_status is not None
+            seen.append((decoder.stats.packets, decoder.uplink_status.accepted))
+    statuses = [p for p in expected["packets"] if p["type"] == "uplink_status"]
+    assert decoder.stats.errors == 0
+    assert decoder.stats.uplink_statuses == len(statuses)
+    assert seen == [(2, 40), (5, 41), (8, 41)]
+    last = decoder.uplink_status
+    assert last is not None and status_as_json(last) == statuses[-1]
+    assert last.has(UplinkFlag.OVERRIDE) and not last.has(UplinkFlag.LIVE)
+    assert last.failsafe_phase_name == "IDLE"
+
+
+def test_plain_v5_decoder_rejects_each_uplink_status_as_one_chunk(vectors_dir: Path) -> None:
+    """A v5 reader without E3 (here: a Deframer of state packets only) loses nothing else."""
+    wire, expected = load(vectors_dir, "uplink_status_stream")
+    deframer = Deframer(STATE_VERSIONS)
+    states = [packet_as_json(parse_state(p)) for p in deframer.feed(wire)]
+    plain = expected["plain_v5"]
+    assert len(states) == plain["state_packets"]
+    assert sum(deframer.rejected.values()) == deframer.rejected[Rejection.LENGTH]
+    assert deframer.rejected[Rejection.LENGTH] == plain["rejected_chunks"]

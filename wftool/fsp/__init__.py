@@ -2,7 +2,8 @@
 
 Contract: spec/fsp.md. Where things live:
 
-- `packets`  — models (`StatePacket`, `SensorFrame`, `CommandPacket`, `TimeReply`) and layouts
+- `packets`  — models (`StatePacket`, `SensorFrame`, `CommandPacket`, `TimeReply`,
+  `UplinkStatus`) and layouts
 - `framing`  — COBS framing and the length/version/CRC checks (`Deframer`, `Rejection`)
 - `crc`      — the table-driven CRC-8
 - `decoder`  — `StateDecoder`: bytes in, timed packets out; loss, drops, resets counted
@@ -28,9 +29,22 @@ from wftool.fsp.clock import (
     make_estimator,
 )
 from wftool.fsp.decoder import CommandDecoder, StateDecoder, StreamStats
-from wftool.fsp.encoder import CommandSender, encode_command, encode_state, encode_time_reply
+from wftool.fsp.encoder import (
+    CommandSender,
+    encode_command,
+    encode_state,
+    encode_time_reply,
+    encode_uplink_status,
+)
 from wftool.fsp.framing import Rejection
-from wftool.fsp.packets import CommandPacket, SensorFrame, StatePacket, TimeReply
+from wftool.fsp.packets import (
+    CommandPacket,
+    SensorFrame,
+    StatePacket,
+    TimeReply,
+    UplinkFlag,
+    UplinkStatus,
+)
 from wftool.fsp.reader import DEFAULT_BAUDRATE, FspPort, FspReader
 from wftool.fsp.twoway import (
     RoundTrip,
@@ -66,8 +80,11 @@ __all__ = [
     "TimeReply",
     "TwoWayClockEstimator",
     "TwoWayState",
+    "UplinkFlag",
+    "UplinkStatus",
     "encode_command",
     "encode_state",
     "encode_time_reply",
+    "encode_uplink_status",
     "make_estimator",
 ]

@@ -42,7 +42,7 @@ from wftool.fsp.clock import (
     ClockEstimator,
     FcClock,
 )
-from wftool.fsp.crc import crc8_check_words
+from wftool.fsp.crc import crc8, crc8_check_words
 from wftool.fsp.decoder import (
     JITTER_US,
     Reading,
@@ -51,7 +51,7 @@ from wftool.fsp.decoder import (
     follows,
     restarted,
 )
-from wftool.fsp.framing import STATE_VERSIONS, Rejection, longest_chunk
+from wftool.fsp.framing import STATE_VERSIONS, STREAM_VERSIONS, Rejection, longest_chunk
 from wftool.fsp.packets import (
     DROPS_MODULUS,
     FRAME_LAYOUT,
@@ -62,6 +62,7 @@ from wftool.fsp.packets import (
     STATE_LENGTH,
     TRAILER_LAYOUT,
     TUNNEL_LAYOUT,
+    UPLINK_STATUS_LENGTH,
     Layout,
 )
 
@@ -76,7 +77,7 @@ _SCAN_BYTES = 1 << 22
 """Bytes searched for delimiters at a time, so the search needs no capture-sized mask."""
 _SMALL = 16
 """A block of rows this small whose joint decode fails is decoded row by row."""
-_MAX_CHUNK = longest_chunk(STATE_VERSIONS)
+_MAX_CHUNK = longest_chunk(STREAM_VERSIONS)
 assert max(STATE_VERSIONS) < 254  # so every COBS encoding of a state packet is 1 byte longer
 
 
@@ -211,7 +212,7 @@ def decode_columns(
 
     stats = StreamStats(bytes=size, rejected=dict.fromkeys(Rejection, 0))
     parts: dict[str, list] = {}
-    for block in _deframe(np, data, buf, read_ends, cuts, stats.rejected):
+    for block in _deframe(np, data, buf, read_ends, cuts, stats):
         for name, part in _block_columns(np, *block).items():
             parts.setdefault(name, []).append(part)
     if not parts:
@@ -303,16 +304,23 @@ def _delimiters(np: Any, buf: np.ndarray) -> np.ndarray:
 
 
 def _deframe(
-    np: Any, data: bytes, buf: np.ndarray, read_ends: np.ndarray, cuts: np.ndarray, rejected: dict
+    np: Any,
+    data: bytes,
+    buf: np.ndarray,
+    read_ends: np.ndarray,
+    cuts: np.ndarray,
+    stats: StreamStats,
 ) -> Iterator[tuple[np.ndarray, np.ndarray]]:
     """Blocks of accepted packets: (delimiter position of each, its record), in stream
-    order within each packet length. Counts the rejections as it goes.
+    order within each packet length. Counts the rejections, and the uplink statuses (E3)
+    between the packets, as it goes.
 
     Mirrors `framing.Deframer` fed read by read: a chunk is dropped undecoded (LENGTH) when
     at the end of some read more than `_MAX_CHUNK` of it had arrived; a chunk that no
     delimiter completes is pending, not rejected, and so is one cut off at `cuts`, where the
     byte stream broke (`Deframer.resync`): the next chunk begins there.
     """
+    rejected = stats.rejected
     delimiters = _delimiters(np, buf)
     # Chunks end at delimiters, at cuts and (the pending tail) at the end of the data;
     # a cut ends the chunk before a delimiter at the same place.
@@ -335,11 +343,18 @@ def _deframe(
     other = complete & ~candidate
     for start, end in zip(starts[other].tolist(), ends[other].tolist()):
         try:
-            cobs.decode(data[start:end])
+            payload = cobs.decode(data[start:end])
         except cobs.DecodeError:
             rejected[Rejection.COBS] += 1
+            continue
+        if len(payload) != UPLINK_STATUS_LENGTH:
+            rejected[Rejection.LENGTH] += 1  # no other length can decode to a packet
+        elif payload[0] != STREAM_VERSIONS[UPLINK_STATUS_LENGTH]:
+            rejected[Rejection.VERSION] += 1
+        elif crc8(payload[:-1]) != payload[-1]:
+            rejected[Rejection.CRC] += 1
         else:
-            rejected[Rejection.LENGTH] += 1  # no other length can decode to a state packet
+            stats.uplink_statuses += 1
 
     for encoded_length, length in encoded.items():
         rows = np.flatnonzero(candidate & (lengths == encoded_length))
