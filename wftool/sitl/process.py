@@ -39,6 +39,8 @@ SIM_PORT_OFFSET = 3240
 """The simulator's UDP port base, relative to the TCP port base (5760 -> upstream's 9000)."""
 SIM_STATE_PORT = 3
 """SITL's simulator state input is UDP sim base + 3 (9003 by default)."""
+SIM_RC_PORT = 4
+"""SITL's RC input (the simulated radio, `feature RX_UDP`) is UDP sim base + 4."""
 UART_COUNT = 8
 MAX_PORT_BASE = 65535 - SIM_PORT_OFFSET - UART_COUNT
 """The highest port base whose every port (TCP per UART, the simulator's UDP) exists."""
@@ -56,7 +58,9 @@ def ports_in_use(port_base: int) -> list[str]:
     """Which of a virtual FC's ports (TCP per UART, UDP inputs) another program holds."""
     taken = []
     tcp = [(socket.SOCK_STREAM, port_base + uart) for uart in range(1, UART_COUNT + 1)]
-    udp = [(socket.SOCK_DGRAM, port_base + SIM_PORT_OFFSET + n) for n in (3, 4)]
+    udp = [
+        (socket.SOCK_DGRAM, port_base + SIM_PORT_OFFSET + n) for n in (SIM_STATE_PORT, SIM_RC_PORT)
+    ]
     for kind, port in tcp + udp:
         with socket.socket(socket.AF_INET, kind) as probe:
             if kind == socket.SOCK_STREAM:  # as SITL listens: a closed connection's TIME_WAIT
@@ -129,6 +133,11 @@ class VirtualFC:
     def sim_state_port(self) -> int:
         """The UDP port of SITL's simulator state input (motion)."""
         return self.port_base + SIM_PORT_OFFSET + SIM_STATE_PORT
+
+    @property
+    def sim_rc_port(self) -> int:
+        """The UDP port of SITL's RC input (the simulated radio)."""
+        return self.port_base + SIM_PORT_OFFSET + SIM_RC_PORT
 
     @property
     def running(self) -> bool:
