@@ -209,8 +209,8 @@ def test_scripts_wftool_will_not_replay_are_refused_up_front(text: str, message:
 def test_restore_plan_selects_the_recorded_receiver() -> None:
     plan = parse_cli_script("# wftool: feature mask 0x10404000\nset a = 1\n", "b.txt")
     assert plan.features == FeatureChange(
-        enable=1 << 14, disable=(1 << 0) | (1 << 3) | (1 << 13) | (1 << 25)
-    )
+        enable=1 << 14, disable=(1 << 0) | (1 << 1) | (1 << 3) | (1 << 13) | (1 << 25)
+    )  # every other receiver: RX_PPM, RX_UDP (the virtual FC's radio), RX_SERIAL, ..._PWM, _SPI
 
 
 @pytest.mark.parametrize("argument", ["gyro", "=5", "gyro=", "gyro==5"])

@@ -52,6 +52,13 @@ rate_option = click.option(
     "unless --clock says otherwise.",
 )
 @click.option(
+    "--pilot",
+    is_flag=True,
+    help="A safety pilot: the simulated radio (SITL's RC input) is the receiver, ARM on its "
+    "AUX1, and the OBC's commands override the sticks while its AUX2 switch is on (held on; "
+    "sticks centred, throttle low, disarmed). Without it the OBC flies alone (RX_MSP).",
+)
+@click.option(
     "--verify",
     "verify_s",
     type=float,
@@ -76,15 +83,20 @@ rate_option = click.option(
 @criteria_options
 def sitl(
     binary: Path | None, workdir: Path | None, rate_hz: int, motion: bool, time_reply: bool,
-    verify_s: float | None, port_base: int, project_dir: Path | None, **options: Any,
+    pilot: bool, verify_s: float | None, port_base: int, project_dir: Path | None,
+    **options: Any,
 ) -> None:  # fmt: skip
     """Run the virtual FC: the patched SITL with FSP on UART2, until Ctrl-C (or --verify).
+
+    Flown by the OBC alone (the MSP receiver), or with --pilot by a safety pilot's simulated
+    radio with the OBC overriding the sticks on its switch.
 
     With --verify it is judged as a board is: the frame rate against what fsp_rate_hz gives at
     the FC's PID looptime (read over MSP), unless --expected-rate says otherwise. Without it,
     --record, --csv and --foxglove read the stream for as long as the FC runs.
     """
-    from wftool.sitl.session import Motion, VirtualFcSession
+    from wftool.sitl.radio import HIGH
+    from wftool.sitl.session import PILOT_ARM, PILOT_OVERRIDE, Motion, VirtualFcSession
 
     check_duration(verify_s, "--verify")
     if verify_s is not None and time_reply:
@@ -96,13 +108,19 @@ def sitl(
     workdir = workdir or Path(tempfile.mkdtemp(prefix="wftool-sitl-"))
     session = VirtualFcSession(
         binary, workdir, rate_hz=rate_hz, motion=Motion() if motion else None,
-        port_base=port_base or None, time_reply=time_reply,
+        port_base=port_base or None, time_reply=time_reply, pilot=pilot,
     )  # fmt: skip
     err.print(f"starting the virtual FC in {workdir} …")
     with session:
         err.print(f"MSP/CLI  [bold]{session.msp_url}[/]")
         replies = ", fsp_time_reply ON" if time_reply else ""
         err.print(f"FSP      [bold]{session.fsp_url}[/]  (fsp_rate_hz {rate_hz}{replies})")
+        if session.radio is not None:
+            session.radio.set({f"aux{PILOT_OVERRIDE}": HIGH})
+            err.print(
+                f"pilot    the simulated radio on UDP {session.fc.sim_rc_port}: ARM on "
+                f"AUX{PILOT_ARM} (off), override on AUX{PILOT_OVERRIDE} (on)"
+            )
         if options["expected_rate"] is None:
             options["expected_rate"] = session.expected_rate_hz
         if verify_s is not None:

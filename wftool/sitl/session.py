@@ -2,8 +2,13 @@
 
 `VirtualFcSession` is what `wftool sitl` and the end-to-end tests start: a `VirtualFC`
 process in a scratch directory, FSP put on UART2 through the CLI with the same safe
-workflow a lab uses on hardware, and — on request — synthetic IMU motion fed through
-SITL's simulator input (UDP 9003), so the stream carries moving values.
+workflow a lab uses on hardware (`configure fsp`), and — on request — synthetic IMU motion
+fed through SITL's simulator input (UDP 9003), so the stream carries moving values.
+
+Who flies it is `configure fsp`'s choice: the OBC alone (the MSP receiver, the default
+here), or a safety pilot (`pilot=True`): the simulated radio (`radio.SimulatedRadio` on
+SITL's RC input, `feature RX_UDP`) is the receiver, ARM on its AUX1, and the OBC overrides
+the sticks while its AUX2 switch is on.
 """
 
 from __future__ import annotations
@@ -17,15 +22,32 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from wftool.fc.fsp_setup import fsp_planner
-from wftool.fc.msp import MspClient
-from wftool.fc.params import apply_plan
+from wftool.fc.cli_session import CliSession
+from wftool.fc.fsp_setup import (
+    CMD_TIMEOUT_MS_DEFAULT,
+    MODE_ARM,
+    AuxRange,
+    ObcOnly,
+    SafetyPilot,
+    aux_ranges,
+    fsp_planner,
+)
+from wftool.fc.msp import FEATURE_RX_UDP, MspClient
+from wftool.fc.params import Command, Plan, Planner, apply_plan, set_command
 from wftool.fsp import DEFAULT_BAUDRATE
 from wftool.fsp.schedule import DEFAULT_RATE_HZ, frame_rate_hz
 from wftool.sitl.process import DEFAULT_PORT_BASE, LOOPBACK, VirtualFC
+from wftool.sitl.radio import SimulatedRadio
 
 FSP_UART = 2
 GRAVITY = 9.80665
+PILOT_ARM = 1
+"""The simulated radio's ARM switch: AUX1."""
+PILOT_OVERRIDE = 2
+"""The simulated radio's override switch: AUX2."""
+OBC_ARM = 3
+"""Where the OBC flying alone arms: AUX3, which FSP carries (`arm_switch=OBC_ARM`)."""
+SWITCH_ON_US = (1700, 2100)
 
 
 @dataclass(frozen=True)
@@ -132,18 +154,32 @@ class VirtualFcSession:
         port_base: int | None = DEFAULT_PORT_BASE,
         time_reply: bool = False,
         serial_update_rate_hz: int | None = None,
+        pilot: bool = False,
+        cmd_timeout_ms: int = CMD_TIMEOUT_MS_DEFAULT,
+        failsafe_procedure: str = "drop",
+        arm_switch: int | None = None,
     ) -> None:
         """`time_reply`: the FC answers each command with a time reply (spec §10);
         `port_base=None`: any free ports (see `VirtualFC`); `serial_update_rate_hz` None:
-        the highest the FC allows (as `configure fsp`)."""
+        the highest the FC allows (as `configure fsp`). `pilot`: a safety pilot's simulated
+        radio is the receiver (`radio`), else the OBC flies alone with `failsafe_procedure`.
+        `arm_switch`: ARM on that AUX channel (default: the radio's AUX1 with a pilot; none
+        without, where the OBC arms only through an ARM range on AUX3/AUX4)."""
         self.fc = VirtualFC(binary, workdir, port_base=port_base)
         self.workdir = workdir
         self._baud = baud
         self.rate_hz = rate_hz
         self.time_reply = time_reply
         self.serial_update_rate_hz = serial_update_rate_hz
+        self.pilot = pilot
+        self.cmd_timeout_ms = cmd_timeout_ms
+        self.failsafe_procedure = failsafe_procedure
+        self.arm_switch = arm_switch if arm_switch is not None or not pilot else PILOT_ARM
         self._motion = motion
         self._feeder: MotionFeeder | None = None
+        self.radio: SimulatedRadio | None = None
+        """The safety pilot's radio (with `pilot`): sticks centred, throttle low, switches
+        off until told otherwise."""
 
     @property
     def expected_rate_hz(self) -> float:
@@ -159,18 +195,35 @@ class VirtualFcSession:
     def fsp_url(self) -> str:
         return self.fc.uart_url(FSP_UART)
 
+    def planner(self) -> Planner:
+        """`configure fsp` as this virtual FC is flown, plus what a simulator without an
+        airframe needs (`_virtual_airframe`)."""
+        control: SafetyPilot | ObcOnly = ObcOnly(self.failsafe_procedure)
+        if self.pilot:
+            control = SafetyPilot(PILOT_OVERRIDE, SWITCH_ON_US)
+        planner = fsp_planner(
+            FSP_UART,
+            self._baud,
+            self.rate_hz,
+            self.time_reply,
+            self.serial_update_rate_hz,
+            control=control,
+            cmd_timeout_ms=self.cmd_timeout_ms,
+            radio_feature=FEATURE_RX_UDP if self.pilot else None,
+        )
+        return _virtual_airframe(planner, self.arm_switch)
+
     def start(self) -> VirtualFcSession:
         self.fc.start()
         try:
-            planner = fsp_planner(
-                FSP_UART, self._baud, self.rate_hz, self.time_reply, self.serial_update_rate_hz
-            )
-            apply_plan(self.fc, planner, self.workdir / "backups")
+            if self.pilot:
+                self.radio = SimulatedRadio(self.fc.sim_rc_port).start()
+            apply_plan(self.fc, self.planner(), self.workdir / "backups")
             if self._motion is not None:  # the ports are known once the FC runs
                 self._feeder = MotionFeeder(self._motion, self.fc.sim_state_port)
                 self._feeder.start()
         except BaseException:
-            self.fc.stop()
+            self.stop()
             raise
         return self
 
@@ -218,6 +271,9 @@ class VirtualFcSession:
         if self._feeder is not None:
             self._feeder.stop()
             self._feeder = None
+        if self.radio is not None:
+            self.radio.stop()
+            self.radio = None
         self.fc.stop()
 
     def __enter__(self) -> VirtualFcSession:
@@ -225,3 +281,27 @@ class VirtualFcSession:
 
     def __exit__(self, *exc_info: object) -> None:
         self.stop()
+
+
+def _virtual_airframe(planner: Planner, arm_switch: int | None) -> Planner:
+    """`planner`, then ARM on AUX`arm_switch` (its on position) in a slot of its own, and
+    runaway takeoff prevention off: the virtual FC's gyro is the synthetic motion, which no
+    motor moves, so any stick held off centre while armed winds the PID sum up until
+    Betaflight disarms ("runaway takeoff") within ~0.1 s."""
+
+    def plan(session: CliSession) -> Plan:
+        base = planner(session)
+        base.commands.append(set_command("runaway_takeoff_prevention", "OFF"))
+        if arm_switch is None:
+            return base
+        ranges = aux_ranges(session)
+        taken = {int(command.text.split()[1]) for command in base.commands if command.verb == "aux"}
+        arm = [r.slot for r in ranges if r.usable and r.mode == MODE_ARM]
+        free = [r.slot for r in ranges if not r.usable and r.slot not in taken]
+        slot = (arm or free)[0]
+        start, end = SWITCH_ON_US
+        arm = AuxRange(slot, MODE_ARM, arm_switch - 1, start, end)
+        base.commands.append(Command(arm.command()))
+        return base
+
+    return plan
