@@ -14,7 +14,7 @@ from rich.console import Console
 from rich.markup import escape
 
 from wftool import __version__
-from wftool.cli import analyze, bench, build, fc, paper, record, sitl, verify
+from wftool.cli import analyze, bench, build, fc, paper, preflight, record, sitl, verify
 from wftool.errors import EXIT_USAGE, Terminated, WftoolError
 from wftool.interrupts import raise_for
 
@@ -27,7 +27,7 @@ def cli() -> None:
     """Build, flash, configure and verify the Weitflug research firmware."""
 
 
-for _module in (build, fc, verify, record, sitl, bench, analyze, paper):
+for _module in (build, fc, verify, preflight, record, sitl, bench, analyze, paper):
     for _command in _module.COMMANDS:
         cli.add_command(_command)
 

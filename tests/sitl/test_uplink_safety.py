@@ -1,0 +1,156 @@
+"""The uplink fails safe on the real firmware (the patched SITL), as `configure fsp` sets it up.
+
+A safety pilot (the simulated radio the receiver, armed, MSP OVERRIDE on its switch): when the
+OBC is killed, stops, repeats its last packet, sends garbage or replays old packets, the
+pilot's stick values are back within 100 ms of its last fresh command, the FC still armed and
+following the pilot's sticks; switched on before any fresh command, nothing moves. The OBC
+alone (RX_MSP): a stuck OBC is an RX loss within 100 ms, then Betaflight's failsafe. And an FC
+that is never sent a command streams exactly what a v5 reader expects.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+from wftool.fc.msp import MspClient
+from wftool.fsp.framing import STATE_VERSIONS, Deframer, Rejection
+from wftool.fsp.reader import FspPort
+from wftool.sitl.radio import SimulatedPilot
+from wftool.sitl.session import OBC_ARM, PILOT_ARM, PILOT_OVERRIDE, Motion, VirtualFcSession
+from wftool.verify.preflight import (
+    FAILURES,
+    LIMIT_MS,
+    STICKS,
+    FcWatcher,
+    Obc,
+    ms_after,
+    near,
+    offset_rc,
+)
+
+pytestmark = pytest.mark.slow
+
+
+@dataclass
+class Flight:
+    session: VirtualFcSession
+    watcher: FcWatcher
+    obc: Obc
+    pilot: SimulatedPilot | None
+    pilot_rc: tuple[int, ...]
+
+
+@pytest.fixture(scope="module")
+def piloted(sitl_binary: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Flight]:
+    """A virtual FC with a safety pilot, armed by the pilot."""
+    workdir = tmp_path_factory.mktemp("piloted")
+    with (
+        VirtualFcSession(sitl_binary, workdir, motion=Motion(), port_base=None, pilot=True) as fc,
+        MspClient.open(fc.msp_url) as msp,
+    ):
+        assert fc.radio is not None
+        pilot = SimulatedPilot(fc.radio, PILOT_OVERRIDE, PILOT_ARM)
+        watcher = FcWatcher(msp).start()
+        obc = Obc(fc.fsp_url).start()
+        try:
+            assert watcher.wait(lambda s: s.can_arm, time.monotonic(), 20.0), "arming disabled"
+            pilot.hold(armed=True)
+            assert watcher.wait(lambda s: s.armed, time.monotonic(), 5.0), "the pilot cannot arm"
+            pilot.hold(override=True)
+            on = watcher.wait(lambda s: s.override, time.monotonic(), 1.0)
+            assert on is not None, "MSP OVERRIDE did not come on"
+            yield Flight(fc, watcher, obc, pilot, on.rc)
+        finally:
+            obc.stop()
+            watcher.stop()
+
+
+def test_override_on_before_any_fresh_command_moves_nothing(piloted: Flight) -> None:
+    pilot, watcher, obc, pilot_rc = piloted.pilot, piloted.watcher, piloted.obc, piloted.pilot_rc
+    assert pilot is not None
+    pilot.hold(override=False)
+    time.sleep(0.2)
+    pilot.hold(override=True)
+    on = watcher.wait(lambda s: s.override, time.monotonic(), 1.0)
+    assert on is not None, "MSP OVERRIDE did not come on"
+    obc.send_one((*offset_rc(pilot_rc), 2000, 2000))  # one packet is no evidence
+    time.sleep(0.5)
+    seen = watcher.since(on.t)
+    assert len(seen) > 50
+    assert all(s.rc[:8] == pilot_rc[:8] for s in seen), {s.rc[:8] for s in seen}
+    assert min(min(s.rc[:STICKS]) for s in seen) > 885  # never the unset value's clamp
+
+
+@pytest.mark.parametrize("failure", list(FAILURES))
+def test_the_pilots_sticks_are_back_within_the_limit(piloted: Flight, failure: str) -> None:
+    pilot, watcher, obc, pilot_rc = piloted.pilot, piloted.watcher, piloted.obc, piloted.pilot_rc
+    assert pilot is not None and piloted.session.radio is not None
+    pilot.hold(override=True)
+    command = (*offset_rc(pilot_rc), 2000, 2000)
+    obc.behave("fresh", command)
+    taken = watcher.wait(lambda s: near(s.rc[:STICKS], command[:STICKS]), time.monotonic(), 2.0)
+    assert taken is not None, "fresh commands do not fly the sticks"
+    time.sleep(0.3)
+    assert near(watcher.latest().rc[4:8], pilot_rc[4:8])  # ARM, the switch: the pilot's
+    t0 = obc.behave(failure)
+    try:
+        back = watcher.wait(lambda s: near(s.rc[:STICKS], pilot_rc[:STICKS]), t0, 2.0)
+        ms = ms_after(back, t0)
+        assert ms is not None and ms <= LIMIT_MS, f"{FAILURES[failure]}: {ms} ms"
+        time.sleep(0.5)  # the failure goes on: the pilot keeps the sticks, armed, no RXLOSS
+        after = watcher.since(back.t)
+        assert all(near(s.rc[:STICKS], pilot_rc[:STICKS]) for s in after)
+        assert all(s.armed and not s.rx_loss and not s.failsafe for s in after)
+        roll = pilot_rc[0] + 120  # and the FC flies the pilot's sticks
+        piloted.session.radio.set(roll=roll)
+        assert watcher.wait(lambda s: s.rc[0] == roll, time.monotonic(), 1.0)
+    finally:
+        piloted.session.radio.set(roll=pilot_rc[0])
+        obc.behave("stopped")
+        watcher.wait(lambda s: s.rc[0] == pilot_rc[0], time.monotonic(), 1.0)
+
+
+def test_obc_alone_stuck_is_rx_loss_then_failsafe(sitl_binary: Path, tmp_path: Path) -> None:
+    with (
+        VirtualFcSession(
+            sitl_binary, tmp_path, motion=Motion(), port_base=None, arm_switch=OBC_ARM
+        ) as fc,
+        MspClient.open(fc.msp_url) as msp,
+    ):
+        watcher = FcWatcher(msp).start()
+        obc = Obc(fc.fsp_url).start()
+        try:
+            obc.behave("fresh", (1400, 1600, 1450, 1000, 1000, 1000))
+            assert watcher.wait(lambda s: s.can_arm, time.monotonic(), 20.0), "arming disabled"
+            obc.behave("fresh", (1400, 1600, 1450, 1000, 1850, 1000))  # ARM on AUX3
+            assert watcher.wait(lambda s: s.armed, time.monotonic(), 5.0), "the OBC cannot arm"
+            time.sleep(0.3)
+            t0 = obc.behave("stuck")
+            lost = ms_after(watcher.wait(lambda s: s.rx_loss, t0, 2.0), t0)
+            assert lost is not None and lost <= LIMIT_MS, lost
+            stage2 = ms_after(watcher.wait(lambda s: not s.armed, t0, 5.0), t0)
+            assert stage2 is not None and 1500 <= stage2 <= 1500 + LIMIT_MS, stage2  # DROP
+        finally:
+            obc.stop()
+            watcher.stop()
+
+
+def test_a_stream_never_commanded_is_plain_v5(sitl_binary: Path, tmp_path: Path) -> None:
+    """No command, no uplink status: a v5 reader rejects nothing. One command later, the FC
+    reports on it (E3), which a v5 reader counts as chunks of another length."""
+    with VirtualFcSession(sitl_binary, tmp_path, port_base=None) as fc, FspPort(fc.fsp_url) as port:
+        plain = Deframer(STATE_VERSIONS)
+        until = time.monotonic() + 1.0
+        while time.monotonic() < until:
+            plain.feed(port.read_bytes(0.05))
+        assert not any(plain.rejected.values()), plain.rejected
+        port.send_command((1500, 1500, 1500, 1000, 1000, 1000))
+        until = time.monotonic() + 0.5
+        while time.monotonic() < until:
+            plain.feed(port.read_bytes(0.05))
+        assert plain.rejected[Rejection.LENGTH] >= 1
