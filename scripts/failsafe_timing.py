@@ -19,16 +19,29 @@ import argparse
 import statistics
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from wftool.fc.msp import MspClient
 from wftool.sitl.radio import SimulatedPilot
 from wftool.sitl.session import OBC_ARM, PILOT_ARM, PILOT_OVERRIDE, Motion, VirtualFcSession
-from wftool.verify.preflight import STICKS, FcWatcher, Obc, ms_after, near, offset_rc
+from wftool.verify.preflight import (
+    STICKS,
+    FcWatcher,
+    Obc,
+    Snapshot,
+    ms_after,
+    near,
+    offset_rc,
+)
 
 HOLD_S = 0.5
 FAILURES = ("closed", "stopped", "stuck", "garbage")
 NAMES = {"closed": "killed", "stopped": "stopped", "stuck": "stuck", "garbage": "garbage"}
+
+
+def roll_is(value: int) -> Callable[[Snapshot], bool]:
+    return lambda snapshot: snapshot.rc[0] == value
 
 
 def safety_pilot(binary: Path, port_base: int | None, trials: int, timeout_ms: int) -> dict:
@@ -75,16 +88,14 @@ def safety_pilot(binary: Path, port_base: int | None, trials: int, timeout_ms: i
                     latest = watcher.latest()
                     roll = pilot_rc[0] + 100  # the pilot flies: the FC follows the stick
                     session.radio.set(roll=roll)
-                    moved = watcher.wait(
-                        lambda s, roll=roll: s.rc[0] == roll, time.monotonic(), 1.0
-                    )
+                    follows = watcher.wait(roll_is(roll), time.monotonic(), 1.0)
                     session.radio.set(roll=pilot_rc[0])
                     watcher.wait(lambda s: s.rc[0] == pilot_rc[0], time.monotonic(), 1.0)
                     ms = ms_after(back, t0)
                     name = f"override on, OBC {NAMES[failure]}: pilot's sticks back (ms)"
                     results.setdefault(name, []).append(float("inf") if ms is None else ms)
                     flying = latest.armed and near(latest.rc[:STICKS], pilot_rc[:STICKS])
-                    armed_after.setdefault(name, []).append(flying and moved is not None)
+                    armed_after.setdefault(name, []).append(flying and follows is not None)
                     obc.behave("stopped")
                     time.sleep(0.1)
         finally:

@@ -296,9 +296,9 @@ def _virtual_airframe(planner: Planner, arm_switch: int | None) -> Planner:
             return base
         ranges = aux_ranges(session)
         taken = {int(command.text.split()[1]) for command in base.commands if command.verb == "aux"}
-        arm = [r.slot for r in ranges if r.usable and r.mode == MODE_ARM]
+        arms = [r.slot for r in ranges if r.usable and r.mode == MODE_ARM]
         free = [r.slot for r in ranges if not r.usable and r.slot not in taken]
-        slot = (arm or free)[0]
+        slot = (arms or free)[0]
         start, end = SWITCH_ON_US
         arm = AuxRange(slot, MODE_ARM, arm_switch - 1, start, end)
         base.commands.append(Command(arm.command()))

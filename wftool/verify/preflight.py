@@ -33,6 +33,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
+import serial
+
 from wftool.errors import PortError, ProtocolError
 from wftool.fc.msp import FEATURE_RX_MSP, MspClient
 from wftool.fc.transport import open_port, read_within, selectable_fd
@@ -282,7 +284,7 @@ class Obc:
         self._period = 1.0 / rate_hz
         self._sender = CommandSender()
         self.decoder = StateDecoder()
-        self._port = None
+        self._port: serial.SerialBase | None = None
         self._fd: int | None = None
         self._lock = threading.Lock()
         self._mode = "stopped"
@@ -310,8 +312,8 @@ class Obc:
         self._close()
 
     def _open(self) -> None:
-        self._port = open_port(self.url, self.baudrate, timeout=0)
-        self._fd = selectable_fd(self._port)
+        port = open_port(self.url, self.baudrate, timeout=0)
+        self._port, self._fd = port, selectable_fd(port)
         self.decoder.resync()
 
     def _close(self) -> None:
