@@ -145,7 +145,7 @@ def reply_as_json(reply: TimeReply) -> dict[str, Any]:
 
 STATUS_FIELDS = (
     "command_seq", "tx_time_us", "accepted", "stale", "timeouts", "rejected", "timeout_ms",
-    "flags", "failsafe_phase",
+    "flags", "failsafe_phase", "timed_out_us",
 )  # fmt: skip
 MIXED_VECTORS = ["time_reply", "time_reply_stream", "uplink_status", "uplink_status_stream"]
 """Written by the firmware's own C encoder: E2 time replies (§10), E3 uplink statuses (§12)."""
@@ -232,6 +232,10 @@ def test_state_decoder_takes_uplink_statuses_between_the_packets(vectors_dir: Pa
     assert last is not None and status_as_json(last) == statuses[-1]
     assert last.has(UplinkFlag.OVERRIDE) and not last.has(UplinkFlag.LIVE)
     assert last.failsafe_phase_name == "IDLE"
+    packet = decoder.last_packet  # the status was sent 40 µs after it, by the FC clock
+    assert packet is not None and packet.time_us is not None
+    assert last.sent_us == packet.time_us + 40
+    assert last.timed_out_at_us == last.sent_us - (last.tx_time_us - last.timed_out_us)
 
 
 def test_plain_v5_decoder_rejects_each_uplink_status_as_one_chunk(vectors_dir: Path) -> None:

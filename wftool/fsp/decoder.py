@@ -318,8 +318,21 @@ class StateDecoder:
             second.obc_time = self.clock.to_obc(second.time_us)
 
     def _uplink_status(self, status: UplinkStatus, arrival_time: float | None) -> None:
+        """Keep the newest status, its FC times unwrapped against the latest state packet's
+        when its send time lies within `REPLY_PLACE_US` of it (as a time reply's)."""
         self.stats.uplink_statuses += 1
         status.arrival_time = arrival_time
+        last = self._last
+        if last is not None and last.time_us is not None:
+            ahead = (status.tx_time_us - last.tx_time_us) % U32
+            if ahead >= _HALF_U32:
+                ahead -= U32
+            if abs(ahead) <= REPLY_PLACE_US:
+                status.sent_us = sent_us = last.time_us + ahead
+                if status.timeouts:  # before the status, within 2^31 µs
+                    status.timed_out_at_us = (
+                        sent_us - (status.tx_time_us - status.timed_out_us) % U32
+                    )
         self.uplink_status = status
 
     def _time_reply(self, reply: TimeReply, arrival_time: float | None) -> None:

@@ -23,7 +23,7 @@ STATE_LENGTH = 116
 STATE_TUNNEL_LENGTH = 180
 COMMAND_LENGTH = 24
 TIME_REPLY_LENGTH = 20
-UPLINK_STATUS_LENGTH = 32
+UPLINK_STATUS_LENGTH = 36
 MAVLINK_FIELD_LENGTH = 64
 
 E1_FLAG = 1 << 23
@@ -68,7 +68,7 @@ _TRAILER = struct.Struct("<" + _TRAILER_FORMAT)
 _new = object.__new__
 _COMMAND = struct.Struct("<BBHI6h3xB")
 _TIME_REPLY = struct.Struct("<BBHIII3xB")
-_UPLINK_STATUS = struct.Struct("<BBHIIIIIHBB3xB")
+_UPLINK_STATUS = struct.Struct("<BBHIIIIIHBBI3xB")
 assert _STATE_BASE.size == STATE_LENGTH
 assert _STATE_TUNNEL.size == STATE_TUNNEL_LENGTH
 assert _COMMAND.size == COMMAND_LENGTH
@@ -319,6 +319,12 @@ class UplinkStatus:
     """`UplinkFlag` bits."""
     failsafe_phase: int
     """Betaflight's failsafe phase (`FAILSAFE_PHASES`)."""
+    timed_out_us: int = 0
+    """FC `micros()` (u32) when a command in effect last timed out; 0 before the first."""
+    sent_us: int | None = field(default=None, compare=False)
+    """`tx_time_us` unwrapped into the state stream's 64-bit FC time (set by the decoder)."""
+    timed_out_at_us: int | None = field(default=None, compare=False)
+    """`timed_out_us` unwrapped likewise, when there was a timeout (set by the decoder)."""
     arrival_time: float | None = field(default=None, compare=False)
     """OBC clock (s) when the bytes carrying the status were read."""
 
@@ -424,7 +430,7 @@ def pack_uplink_status(status: UplinkStatus) -> bytes:
         body = _UPLINK_STATUS.pack(
             VERSION, seq & 0xFF, seq >> 8, status.tx_time_us, status.accepted, status.stale,
             status.timeouts, status.rejected, status.timeout_ms, status.flags,
-            status.failsafe_phase, 0,
+            status.failsafe_phase, status.timed_out_us, 0,
         )  # fmt: skip
     except struct.error as exc:
         raise ValueError(f"uplink status field out of range: {exc}") from None
