@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import sys
 import tempfile
+from functools import partial
 from pathlib import Path
 
 import click
@@ -78,7 +79,9 @@ def preflight(
     the pilot's stick values must be back within --limit-ms after the OBC's last fresh
     command, and stay; with the OBC alone RXLOSS must come within it, then Betaflight's
     failsafe. On a board (props off) you hold the transmitter and are asked to flip the
-    override switch. Exits 1 naming each line that failed.
+    override switch. Times are by the FC clock where the FC answers commands with time replies
+    (`set fsp_time_reply = ON`; the virtual FC does), else by the host's. Exits 1 naming each
+    line that failed.
     """
     if sitl:
         if port or fsp_port:
@@ -114,6 +117,7 @@ def _on_sitl(
 ) -> PreflightReport:  # fmt: skip
     from wftool.sitl.radio import SimulatedPilot
     from wftool.sitl.session import (
+        FSP_UART,
         OBC_ARM,
         PILOT_ARM,
         PILOT_OVERRIDE,
@@ -126,6 +130,7 @@ def _on_sitl(
     session = VirtualFcSession(
         binary, workdir, motion=Motion(), port_base=port_base or None, pilot=not obc_only,
         cmd_timeout_ms=cmd_timeout_ms, arm_switch=OBC_ARM if obc_only else None,
+        time_reply=True,  # preflight times by the FC clock (the host's is no measure of a SITL)
     )  # fmt: skip
     flown = "the OBC alone" if obc_only else "a safety pilot"
     log(f"starting the virtual FC in {workdir} ({flown})")
@@ -134,7 +139,11 @@ def _on_sitl(
         if session.radio is not None:
             pilot = SimulatedPilot(session.radio, PILOT_OVERRIDE, PILOT_ARM)
         with MspClient.open(session.msp_url) as msp:
-            return Preflight(msp, session.fsp_url, pilot, limit_ms=limit_ms, arm=arm, log=log).run()
+            closing = partial(session.fc.close_client, FSP_UART)
+            preflight = Preflight(
+                msp, session.fsp_url, pilot, limit_ms=limit_ms, arm=arm, log=log, closing=closing
+            )
+            return preflight.run()
 
 
 def _print(report: PreflightReport) -> None:

@@ -28,6 +28,7 @@ import signal
 import socket
 import subprocess
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from wftool.errors import PortInUseError, SitlError
@@ -231,6 +232,13 @@ class VirtualFC:
                     return ""
                 time.sleep(0.05)
         return f"SITL's PID loop did not start within {LOOP_TIMEOUT_S:.0f} s"
+
+    def close_client(self, uart: int, close: Callable[[], object], timeout: float = 2.0) -> bool:
+        """Run `close` (which closes this program's connection to UARTn) and wait until SITL
+        has released it (`[CLS]UARTn`): a connection made before that is dropped at once."""
+        offset = self.log_path.stat().st_size
+        close()
+        return self._await_log(f"[CLS]UART{uart}".encode(), timeout, offset) is not None
 
     def _await_log(self, marker: bytes, timeout: float, offset: int = 0) -> bytes | None:
         """The log from `offset` (default: this start) once it holds `marker`, else None."""

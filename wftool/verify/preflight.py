@@ -31,7 +31,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, Protocol
 
 import serial
 
@@ -40,8 +40,9 @@ from wftool.fc.msp import FEATURE_RX_MSP, MspClient
 from wftool.fc.transport import open_port, read_within, selectable_fd
 from wftool.fsp.decoder import StateDecoder
 from wftool.fsp.encoder import CommandSender
-from wftool.fsp.packets import UplinkStatus
+from wftool.fsp.packets import UplinkFlag, UplinkStatus
 from wftool.fsp.reader import DEFAULT_BAUDRATE
+from wftool.fsp.twoway import RoundTrip
 from wftool.progress import Log, quiet
 
 MSP_MODE_RANGES = 34
@@ -59,6 +60,8 @@ ARM_SWITCH_FLAG = 1 << 28
 """ARMING_DISABLED_ARM_SWITCH: the ARM switch was on while arming was disabled."""
 STICKS = 4
 """MSP_RC's first channels: roll, pitch, yaw, throttle."""
+FAILSAFE_LANDING = 2
+"""Betaflight's failsafe phases from here on are stage 2 (`FAILSAFE_PHASES`)."""
 RX_LOSS_MS = 150
 """Betaflight's RX loss delay for a receiver that stops (RXLOSS_TRIGGER_INTERVAL)."""
 
@@ -69,8 +72,12 @@ HOLD_S = 0.5
 """How long the FC must stay safe while a failure goes on."""
 TAKEOVER_S = 0.4
 """Fresh commands before each failure, so the OBC is in control when it fails."""
-LINK_UP_S = 3.0
-"""An OBC-alone FC needs `failsafe_recovery_delay` of commands before the link counts as up."""
+WAIT_S = 5.0
+"""How long preflight waits for what it asked of the FC before it says "never" (timings are
+judged against their limits, not this)."""
+LINK_UP_S = 10.0
+"""An OBC-alone FC needs `failsafe_recovery_delay` of commands before the link counts as up
+(a wait, not a limit: a virtual FC on a busy host runs slow)."""
 TOLERANCE_US = 10
 """A stick within this of the pilot's value is the pilot's (a real radio's values jitter)."""
 
@@ -223,7 +230,7 @@ class FcWatcher:
     def request(self, cmd: int) -> bytes:
         """One MSP exchange, between the watcher's own."""
         with self._msp_lock:
-            return self._msp.request(cmd)
+            return self._msp.request(cmd, timeout=WAIT_S)
 
     def _record(self, rc: tuple[int, ...], boxes: int, arming: int) -> None:
         if not rc:
@@ -274,16 +281,38 @@ class FcWatcher:
 
 class Obc:
     """wftool as the OBC: sends commands at `rate_hz` and plays the failures of `FAILURES`;
-    reads the stream alongside (for the FC's uplink statuses, E3)."""
+    reads the stream alongside: the FC's uplink statuses (E3), its time replies (E2, if it
+    sends them) and the frames' sticks, each with its FC time — how long the firmware took,
+    whatever the host's scheduling (`fc_elapsed_us`)."""
 
     def __init__(
-        self, url: str, baudrate: int = DEFAULT_BAUDRATE, rate_hz: float = COMMAND_RATE_HZ
+        self,
+        url: str,
+        baudrate: int = DEFAULT_BAUDRATE,
+        rate_hz: float = COMMAND_RATE_HZ,
+        *,
+        closing: Callable[[Callable[[], None]], object] | None = None,
     ):
+        """`closing(close)` closes the port when the OBC is killed (default: `close()`); the
+        virtual FC's waits until SITL has let go of the connection (`VirtualFC.close_client`),
+        so the new one is not dropped."""
         self.url = url
+        self._closing = closing
         self.baudrate = baudrate
         self._period = 1.0 / rate_hz
-        self._sender = CommandSender()
-        self.decoder = StateDecoder()
+        self.decoder = StateDecoder(time_replies=True)
+        matcher = self.decoder.round_trips
+        assert matcher is not None
+        matcher.on_round_trip = self._answered
+        self._sender = CommandSender(round_trips=matcher)
+        self._taken: dict[float, int] = {}
+        """OBC send time of a command → FC time (µs) it was taken, by its time reply."""
+        self.frames: list[tuple[int, tuple[int, ...]]] = []
+        """(FC time in µs, sticks roll, pitch, yaw, throttle) of every frame read."""
+        self.statuses: list[UplinkStatus] = []
+        """Every uplink status read, placed on the FC clock (`sent_us`) where it could be."""
+        self.last_fresh_sent = 0.0
+        """The OBC time stamped on the last fresh command."""
         self._port: serial.SerialBase | None = None
         self._fd: int | None = None
         self._lock = threading.Lock()
@@ -323,18 +352,32 @@ class Obc:
 
     def behave(self, mode: str, rc: Sequence[int] | None = None) -> float:
         """Send fresh commands carrying `rc` ("fresh"), or play a failure (`FAILURES`) from now
-        on; the host time the last fresh command was written."""
+        on; the host time the last fresh command was written.
+
+        "closed" is the OBC killed: it stops sending, its port closes (once the FC answered
+        the last command, if it answers: 20 ms at most) and a new connection (another OBC
+        program, say) stays silent — the FC sees silence either way, and the uplink statuses
+        that come then say when it stopped taking commands (`fc_timed_out_us`)."""
         if mode != "fresh" and mode not in FAILURES:
             raise ValueError(f"no OBC behaviour {mode!r}")
         with self._lock:
             if rc is not None:
                 self._rc = tuple(rc)
             self._mode = mode
-            if mode == "closed":
-                self._close()
-            elif self._port is None:
+            last = self.last_fresh_t
+            if self._port is None:
                 self._open()
-            return self.last_fresh_t
+        if mode == "closed":
+            deadline = time.monotonic() + 0.02
+            while self.fc_taken_us() is None and time.monotonic() < deadline:
+                time.sleep(0.001)
+            with self._lock:
+                if self._closing is None:
+                    self._close()
+                else:
+                    self._closing(self._close)
+                self._open()
+        return last
 
     def send_one(self, rc: Sequence[int]) -> None:
         """One command, alone (the FC takes no command from one packet: spec §11)."""
@@ -364,15 +407,58 @@ class Obc:
             if port is not None:
                 data = read_within(port, self._fd, 0)
                 if data:
-                    self.decoder.feed(data, time.monotonic())
+                    before = self.decoder.stats.uplink_statuses
+                    for packet in self.decoder.feed(data, time.monotonic()):
+                        self.frames += [(f.time_us or 0, f.rc[:STICKS]) for f in packet.frames]
+                    if self.decoder.stats.uplink_statuses != before and self.status is not None:
+                        self.statuses.append(self.status)
         time.sleep(timeout)
+
+    def _answered(self, trip: RoundTrip) -> None:
+        self._taken[trip.obc_sent] = trip.fc_received_us
+
+    def fc_taken_us(self) -> int | None:
+        """FC time (µs, the stream's) the last fresh command was taken; None if the FC did
+        not answer it (`fsp_time_reply` OFF)."""
+        with self._lock:
+            return self._taken.get(self.last_fresh_sent)
+
+    def fc_timed_out_us(self, since_us: int) -> int | None:
+        """FC microseconds from `since_us` to the timeout an uplink status reports after it;
+        None if none was read (yet)."""
+        with self._lock:
+            times = [
+                s.timed_out_at_us for s in self.statuses
+                if s.timed_out_at_us is not None and s.timed_out_at_us > since_us
+            ]  # fmt: skip
+        return times[0] - since_us if times else None
+
+    def fc_elapsed_us(
+        self,
+        since_us: int,
+        sticks: Callable[[tuple[int, ...]], bool] | None = None,
+        status: Callable[[UplinkStatus], bool] | None = None,
+    ) -> int | None:
+        """FC microseconds from `since_us` to the first frame whose sticks satisfy `sticks`,
+        or the first status for which `status` holds; None if none was read (yet)."""
+        with self._lock:
+            if sticks is not None:
+                times = [t for t, rc in self.frames if t > since_us and sticks(rc)]
+            else:
+                assert status is not None
+                times = [
+                    s.sent_us for s in self.statuses
+                    if s.sent_us is not None and s.sent_us > since_us and status(s)
+                ]  # fmt: skip
+        return times[0] - since_us if times else None
 
     def _tick(self) -> None:
         mode = self._mode
         if mode == "fresh":
-            packet = self._sender.encode(self._rc)
+            sent = time.monotonic()
+            packet = self._sender.encode(self._rc, sent)
             self._write(packet)
-            self.last_fresh_t = time.monotonic()
+            self.last_fresh_sent, self.last_fresh_t = sent, time.monotonic()
             self._sent = [*self._sent[-49:], packet]
         elif mode == "stuck" and self._sent:
             self._write(self._sent[-1])
@@ -478,13 +564,15 @@ class Preflight:
         limit_ms: float = LIMIT_MS,
         arm: bool = False,
         log: Log = quiet,
+        closing: Callable[[Callable[[], None]], object] | None = None,
     ) -> None:
+        """`closing`: how the OBC's port closes when it is killed (see `Obc`)."""
         self.msp = msp
         self.pilot = pilot
         self.limit_ms = limit_ms
         self.arm = arm
         self.log = log
-        self.obc = Obc(fsp_url, baudrate)
+        self.obc = Obc(fsp_url, baudrate, closing=closing)
         self.watcher = FcWatcher(msp)
         self.report = PreflightReport("?")
 
@@ -537,6 +625,29 @@ class Preflight:
         time.sleep(((timeout_ms or 150) + 50) / 1000)  # any earlier sequence has timed out
         return Setup(obc_alone, timeout_ms, failsafe[0] * 100, arm_range)
 
+    def _elapsed(
+        self, t0: float, seen: Snapshot | None, failure: str, **what: Any
+    ) -> tuple[float | None, str]:
+        """How long after the last fresh command the FC did what MSP showed in `seen`: by the
+        FC clock (its time reply and the stream: `Obc.fc_elapsed_us`) where it answers
+        commands (`fsp_time_reply`), else from the host's write to the MSP reply. While the
+        port was closed the stream cannot show it: then the FC's timeout, as the uplink status
+        reports it (the change itself comes at once, or with the radio's next frame)."""
+        if seen is None:
+            return None, "never"
+        deadline = time.monotonic() + 2.0
+        while (taken := self.obc.fc_taken_us()) is None and time.monotonic() < deadline:
+            time.sleep(0.01)
+        closed = failure == "closed"
+        while taken is not None and time.monotonic() < deadline:
+            us = (
+                self.obc.fc_timed_out_us(taken) if closed else self.obc.fc_elapsed_us(taken, **what)
+            )
+            if us is not None:
+                return us / 1000, "FC clock: its timeout" if closed else "FC clock"
+            time.sleep(0.01)
+        return ms_after(seen, t0), "host clock"
+
     def _wait_status(self, timeout: float) -> UplinkStatus | None:
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
@@ -567,12 +678,14 @@ class Preflight:
             "override on, no fresh command yet: the sticks stay the pilot's",
             f"moved {moved} µs", f"≤ {TOLERANCE_US} µs", moved <= TOLERANCE_US,
         )  # fmt: skip
+        sticks = pilot_rc[:STICKS]
         for name, description in FAILURES.items():
             if not self._take_over(pilot_rc, f"{description}: "):
                 return
             t0 = self.obc.behave(name)
-            back = self.watcher.wait(lambda s: near(s.rc[:STICKS], pilot_rc[:STICKS]), t0, 2.0)
-            report.timing(f"{description}: pilot's sticks back", ms_after(back, t0), self.limit_ms)
+            back = self.watcher.wait(lambda s: near(s.rc[:STICKS], sticks), t0, WAIT_S)
+            ms, clock = self._elapsed(t0, back, name, sticks=lambda rc: near(rc, sticks))
+            report.timing(f"{description}: pilot's sticks back ({clock})", ms, self.limit_ms)
             if back is not None:
                 self._stays_with_pilot(description, pilot_rc, back.t, armed)
             self.obc.behave("stopped")
@@ -632,7 +745,7 @@ class Preflight:
         t0 = time.monotonic()
         self.obc.behave("fresh", command)
         wanted = (command[0], command[1], command[2], command[3])
-        taken = self.watcher.wait(lambda s: near(s.rc[:STICKS], wanted), t0, 2.0)
+        taken = self.watcher.wait(lambda s: near(s.rc[:STICKS], wanted), t0, WAIT_S)
         if taken is None:
             latest = self.watcher.latest()
             self.report.add(
@@ -691,7 +804,7 @@ class Preflight:
             return
         t0 = time.monotonic()
         self.pilot.transmitter(False)
-        lost = self.watcher.wait(lambda s: s.rx_loss, t0, 3.0)
+        lost = self.watcher.wait(lambda s: s.rx_loss, t0, WAIT_S)
         name = "pilot's radio lost while the OBC flies: RXLOSS"
         self.report.timing(name, ms_after(lost, t0), RX_LOSS_MS + self.limit_ms)
         self.pilot.transmitter(True)
@@ -732,7 +845,7 @@ class Preflight:
                 self.watcher.wait(lambda s: s.can_arm, time.monotonic(), 15.0)
                 armed_rc = (*rc[:4], *self._arm_aux(setup.arm_range, True))
                 self.obc.behave("fresh", armed_rc)
-                armed = self.watcher.wait(lambda s: s.armed, time.monotonic(), 3.0)
+                armed = self.watcher.wait(lambda s: s.armed, time.monotonic(), WAIT_S)
                 report.add(
                     "the OBC arms (--arm)", "armed" if armed else "not armed", "armed", bool(armed)
                 )
@@ -742,19 +855,24 @@ class Preflight:
                 time.sleep(TAKEOVER_S)
             time.sleep(TAKEOVER_S)
             t0 = self.obc.behave(name)
-            lost = self.watcher.wait(lambda s: s.rx_loss, t0, 2.0)
-            report.timing(
-                f"{description}: RXLOSS",
-                None if lost is None else 1e3 * (lost.t - t0),
-                self.limit_ms,
-            )
+            lost = self.watcher.wait(lambda s: s.rx_loss, t0, WAIT_S)
+            ms, clock = self._elapsed(t0, lost, name, status=lambda s: s.has(UplinkFlag.RX_LOSS))
+            report.timing(f"{description}: RXLOSS ({clock})", ms, self.limit_ms)
             if self.arm and last:
                 stage2 = self.watcher.wait(
                     lambda s: s.failsafe or not s.armed, t0, setup.failsafe_delay_ms / 1e3 + 2.0
                 )
+                ms, clock = self._elapsed(
+                    t0,
+                    stage2,
+                    name,
+                    status=lambda s: (
+                        not s.has(UplinkFlag.ARMED) or s.failsafe_phase >= FAILSAFE_LANDING
+                    ),
+                )
                 delay = setup.failsafe_delay_ms
-                name = f"{description}: failsafe stage 2 (failsafe_delay {delay} ms)"
-                report.timing(name, ms_after(stage2, t0), delay + self.limit_ms)
+                name = f"{description}: failsafe stage 2 ({clock}; failsafe_delay {delay} ms)"
+                report.timing(name, ms, delay + self.limit_ms)
             else:
                 time.sleep(HOLD_S)
                 still = self.watcher.latest()
