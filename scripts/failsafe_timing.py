@@ -5,12 +5,17 @@
 
 Safety pilot (the simulated radio the receiver, armed, MSP OVERRIDE on): the OBC flies the
 sticks with fresh commands at 100 Hz, then is killed (port closed), stops, repeats its last
-packet or sends garbage; measured is the time from the write of its last fresh command to the
-MSP_RC reply that shows all four of the pilot's stick values again, and whether the FC is still
-armed 0.5 s later. Switched on before any fresh command: the largest stick move within 0.5 s.
-The OBC alone (RX_MSP, armed by the OBC on AUX3, DROP): the OBC repeats its last packet; the
-times to RXLOSS and to failsafe stage 2 (the disarm). Built from wftool.verify.preflight's
-parts; every time is an upper bound (the reply that showed it).
+packet or sends garbage; measured is the time until all four of the pilot's stick values are
+back, and whether 0.5 s later the FC is still armed on the pilot's sticks and follows them.
+Switched on before any fresh command: the largest stick move within 0.5 s. The OBC alone
+(RX_MSP, armed by the OBC on AUX3, DROP): the OBC repeats its last packet; the times to RXLOSS
+and to failsafe stage 2 (the disarm).
+
+Two clocks: the FC's (from the FC time the last fresh command was taken, by its time reply, to
+the first frame with the pilot's sticks or the uplink status that reports the change; for a
+killed OBC, whose stream breaks off, the FC's timeout as the status reports it) and the host's
+(from the write of the last fresh command to the MSP reply that showed the change: an upper
+bound, and on a busy host a measure of the host). Built from wftool.verify.preflight's parts.
 """
 
 from __future__ import annotations
@@ -20,11 +25,21 @@ import statistics
 import tempfile
 import time
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
+from typing import Any
 
 from wftool.fc.msp import MspClient
+from wftool.fsp.packets import UplinkFlag
 from wftool.sitl.radio import SimulatedPilot
-from wftool.sitl.session import OBC_ARM, PILOT_ARM, PILOT_OVERRIDE, Motion, VirtualFcSession
+from wftool.sitl.session import (
+    FSP_UART,
+    OBC_ARM,
+    PILOT_ARM,
+    PILOT_OVERRIDE,
+    Motion,
+    VirtualFcSession,
+)
 from wftool.verify.preflight import (
     STICKS,
     FcWatcher,
@@ -36,25 +51,54 @@ from wftool.verify.preflight import (
 )
 
 HOLD_S = 0.5
-FAILURES = ("closed", "stopped", "stuck", "garbage")
-NAMES = {"closed": "killed", "stopped": "stopped", "stuck": "stuck", "garbage": "garbage"}
+FAILURES = {"closed": "killed", "stopped": "stopped", "stuck": "stuck", "garbage": "garbage"}
+Results = dict[str, dict[str, list[float]]]
 
 
 def roll_is(value: int) -> Callable[[Snapshot], bool]:
     return lambda snapshot: snapshot.rc[0] == value
 
 
-def safety_pilot(binary: Path, port_base: int | None, trials: int, timeout_ms: int) -> dict:
-    results: dict[str, list[float]] = {}
-    armed_after: dict[str, list[bool]] = {}
-    with tempfile.TemporaryDirectory() as workdir, VirtualFcSession(
-        binary, Path(workdir), motion=Motion(), port_base=port_base, pilot=True,
-        cmd_timeout_ms=timeout_ms,
-    ) as session, MspClient.open(session.msp_url) as msp:  # fmt: skip
-        assert session.radio is not None
-        pilot = SimulatedPilot(session.radio, PILOT_OVERRIDE, PILOT_ARM)
+def fc_ms(obc: Obc, timed_out: bool = False, **what: Any) -> float:
+    """FC milliseconds from the last fresh command to what `what` asks (`Obc.fc_elapsed_us`),
+    or to the FC's timeout; inf if the stream never showed it."""
+    deadline = time.monotonic() + 3.0
+    while time.monotonic() < deadline:
+        taken = obc.fc_taken_us()
+        if taken is not None:
+            us = obc.fc_timed_out_us(taken) if timed_out else obc.fc_elapsed_us(taken, **what)
+            if us is not None:
+                return us / 1000
+        time.sleep(0.01)
+    return float("inf")
+
+
+def record(results: Results, name: str, fc: float, host: float | None) -> None:
+    entry = results.setdefault(name, {"fc": [], "host": []})
+    entry["fc"].append(fc)
+    entry["host"].append(float("inf") if host is None else host)
+
+
+def session(binary: Path, port_base: int | None, **options: Any) -> VirtualFcSession:
+    workdir = Path(tempfile.mkdtemp(prefix="wftool-failsafe-timing-"))
+    return VirtualFcSession(
+        binary, workdir, motion=Motion(), port_base=port_base, time_reply=True, **options
+    )
+
+
+def safety_pilot(binary: Path, port_base: int | None, trials: int, timeout_ms: int) -> tuple:
+    results: Results = {}
+    flying_after: dict[str, list[bool]] = {}
+    moves: list[int] = []
+    with (
+        session(binary, port_base, pilot=True, cmd_timeout_ms=timeout_ms) as fc,
+        MspClient.open(fc.msp_url) as msp,
+    ):
+        assert fc.radio is not None
+        radio = fc.radio
+        pilot = SimulatedPilot(radio, PILOT_OVERRIDE, PILOT_ARM)
         watcher = FcWatcher(msp).start()
-        obc = Obc(session.fsp_url).start()
+        obc = Obc(fc.fsp_url, closing=partial(fc.fc.close_client, FSP_UART)).start()
         try:
             watcher.wait(lambda s: s.can_arm, time.monotonic(), 20.0)
             pilot.hold(armed=True)
@@ -68,50 +112,52 @@ def safety_pilot(binary: Path, port_base: int | None, trials: int, timeout_ms: i
                 obc.send_one(command)  # alone: no evidence, never taken
                 start = time.monotonic()
                 time.sleep(HOLD_S)
-                moved = max(
-                    max(abs(a - b) for a, b in zip(s.rc[:STICKS], pilot_rc[:STICKS]))
-                    for s in watcher.since(start)
+                moves.append(
+                    max(
+                        max(abs(a - b) for a, b in zip(s.rc[:STICKS], pilot_rc[:STICKS]))
+                        for s in watcher.since(start)
+                    )
                 )
-                results.setdefault("override on before any command: largest move (µs)", []).append(
-                    moved
-                )
-            for failure in FAILURES:
+            sticks = pilot_rc[:STICKS]
+            for failure, label in FAILURES.items():
+                name = f"override on, OBC {label}: pilot's sticks back"
                 for _ in range(trials):
                     obc.behave("fresh", command)
-                    assert watcher.wait(
-                        lambda s: near(s.rc[:STICKS], command[:STICKS]), time.monotonic(), 2.0
+                    taken = watcher.wait(
+                        lambda s: near(s.rc[:STICKS], command[:STICKS]), time.monotonic(), 5.0
                     )
+                    assert taken is not None, "the OBC does not fly the sticks"
                     time.sleep(0.3)
                     t0 = obc.behave(failure)
-                    back = watcher.wait(lambda s: near(s.rc[:STICKS], pilot_rc[:STICKS]), t0, 2.0)
+                    back = watcher.wait(lambda s: near(s.rc[:STICKS], sticks), t0, 5.0)
+                    closed = failure == "closed"
+                    ms = fc_ms(obc, closed, sticks=lambda rc: near(rc, sticks))
+                    record(results, name, ms, ms_after(back, t0))
                     time.sleep(HOLD_S)
                     latest = watcher.latest()
                     roll = pilot_rc[0] + 100  # the pilot flies: the FC follows the stick
-                    session.radio.set(roll=roll)
-                    follows = watcher.wait(roll_is(roll), time.monotonic(), 1.0)
-                    session.radio.set(roll=pilot_rc[0])
-                    watcher.wait(lambda s: s.rc[0] == pilot_rc[0], time.monotonic(), 1.0)
-                    ms = ms_after(back, t0)
-                    name = f"override on, OBC {NAMES[failure]}: pilot's sticks back (ms)"
-                    results.setdefault(name, []).append(float("inf") if ms is None else ms)
-                    flying = latest.armed and near(latest.rc[:STICKS], pilot_rc[:STICKS])
-                    armed_after.setdefault(name, []).append(flying and follows is not None)
+                    radio.set(roll=roll)
+                    follows = watcher.wait(roll_is(roll), time.monotonic(), 2.0)
+                    radio.set(roll=pilot_rc[0])
+                    watcher.wait(roll_is(pilot_rc[0]), time.monotonic(), 2.0)
+                    flying = latest.armed and near(latest.rc[:STICKS], sticks)
+                    flying_after.setdefault(name, []).append(flying and follows is not None)
                     obc.behave("stopped")
                     time.sleep(0.1)
         finally:
             obc.stop()
             watcher.stop()
-    return {"times": results, "armed": armed_after}
+    return results, flying_after, moves
 
 
-def obc_alone(binary: Path, port_base: int | None, trials: int, timeout_ms: int) -> dict:
-    results: dict[str, list[float]] = {}
-    with tempfile.TemporaryDirectory() as workdir, VirtualFcSession(
-        binary, Path(workdir), motion=Motion(), port_base=port_base, pilot=False,
-        cmd_timeout_ms=timeout_ms, arm_switch=OBC_ARM,
-    ) as session, MspClient.open(session.msp_url) as msp:  # fmt: skip
+def obc_alone(binary: Path, port_base: int | None, trials: int, timeout_ms: int) -> Results:
+    results: Results = {}
+    with (
+        session(binary, port_base, cmd_timeout_ms=timeout_ms, arm_switch=OBC_ARM) as fc,
+        MspClient.open(fc.msp_url) as msp,
+    ):
         watcher = FcWatcher(msp).start()
-        obc = Obc(session.fsp_url).start()
+        obc = Obc(fc.fsp_url).start()
         try:
             disarmed = (1400, 1600, 1450, 1000, 1000, 1000)
             armed = (1400, 1600, 1450, 1000, 1850, 1000)
@@ -122,20 +168,23 @@ def obc_alone(binary: Path, port_base: int | None, trials: int, timeout_ms: int)
                 assert watcher.wait(lambda s: s.armed, time.monotonic(), 5.0), "the OBC did not arm"
                 time.sleep(0.3)
                 t0 = obc.behave("stuck")
-                lost = watcher.wait(lambda s: s.rx_loss, t0, 2.0)
-                stage2 = watcher.wait(lambda s: s.failsafe or not s.armed, t0, 5.0)
-                for name, snapshot in (
-                    ("OBC alone, stuck: RXLOSS (ms)", lost),
-                    ("OBC alone, stuck: failsafe stage 2, disarmed (ms)", stage2),
-                ):
-                    ms = ms_after(snapshot, t0)
-                    results.setdefault(name, []).append(float("inf") if ms is None else ms)
+                lost = watcher.wait(lambda s: s.rx_loss, t0, 5.0)
+                stage2 = watcher.wait(lambda s: s.failsafe or not s.armed, t0, 10.0)
+                fc_lost = fc_ms(obc, status=lambda s: s.has(UplinkFlag.RX_LOSS))
+                fc_stage2 = fc_ms(obc, status=lambda s: not s.has(UplinkFlag.ARMED))
+                record(results, "OBC alone, stuck: RXLOSS", fc_lost, ms_after(lost, t0))
+                name = "OBC alone, stuck: failsafe stage 2 (DROP: disarmed)"
+                record(results, name, fc_stage2, ms_after(stage2, t0))
                 obc.behave("stopped")
                 time.sleep(0.2)
         finally:
             obc.stop()
             watcher.stop()
-    return {"times": results, "armed": {}}
+    return results
+
+
+def span(values: list[float]) -> str:
+    return f"{min(values):.1f} / {statistics.median(values):.1f} / {max(values):.1f}"
 
 
 def main() -> None:
@@ -145,23 +194,21 @@ def main() -> None:
     parser.add_argument("--port-base", type=int, default=None)
     parser.add_argument("--cmd-timeout-ms", type=int, default=50)
     args = parser.parse_args()
-    runs = [
-        safety_pilot(args.binary, args.port_base, args.trials, args.cmd_timeout_ms),
-        obc_alone(args.binary, args.port_base, args.trials, args.cmd_timeout_ms),
-    ]
+    piloted, flying, moves = safety_pilot(
+        args.binary, args.port_base, args.trials, args.cmd_timeout_ms
+    )
+    alone = obc_alone(args.binary, args.port_base, args.trials, args.cmd_timeout_ms)
     print(f"fsp_cmd_timeout_ms {args.cmd_timeout_ms}, {args.trials} trials each (virtual FC)")
-    print("| case | min | median | max | |")
-    print("|---|---:|---:|---:|---|")
-    for run in runs:
-        for name, values in run["times"].items():
+    print("| case | FC clock ms (min / median / max) | host clock ms | |")
+    print("|---|---|---|---|")
+    print(f"| override on before any fresh command: largest stick move | {span(moves)} µs | | |")
+    for results in (piloted, alone):
+        for name, clocks in results.items():
             note = ""
-            if name in run["armed"]:
-                ok = run["armed"][name]
-                note = f"0.5 s on armed, the pilot's sticks, following them: {sum(ok)}/{len(ok)}"
-            print(
-                f"| {name} | {min(values):.1f} | {statistics.median(values):.1f} | "
-                f"{max(values):.1f} | {note} |"
-            )
+            if name in flying:
+                ok = flying[name]
+                note = f"0.5 s on: armed, the pilot's sticks, following them {sum(ok)}/{len(ok)}"
+            print(f"| {name} | {span(clocks['fc'])} | {span(clocks['host'])} | {note} |")
 
 
 if __name__ == "__main__":
