@@ -60,17 +60,9 @@ def roll_is(value: int) -> Callable[[Snapshot], bool]:
 
 
 def fc_ms(obc: Obc, timed_out: bool = False, **what: Any) -> float:
-    """FC milliseconds from the last fresh command to what `what` asks (`Obc.fc_elapsed_us`),
-    or to the FC's timeout; inf if the stream never showed it."""
-    deadline = time.monotonic() + 3.0
-    while time.monotonic() < deadline:
-        taken = obc.fc_taken_us()
-        if taken is not None:
-            us = obc.fc_timed_out_us(taken) if timed_out else obc.fc_elapsed_us(taken, **what)
-            if us is not None:
-                return us / 1000
-        time.sleep(0.01)
-    return float("inf")
+    """`Obc.wait_fc_elapsed_us` in milliseconds; inf if the stream never showed it."""
+    us = obc.wait_fc_elapsed_us(timed_out=timed_out, **what)
+    return float("inf") if us is None else us / 1000
 
 
 def record(results: Results, name: str, fc: float, host: float | None) -> None:

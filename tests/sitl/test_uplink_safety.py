@@ -22,7 +22,6 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
-from typing import Any
 
 import pytest
 
@@ -50,31 +49,6 @@ from wftool.verify.preflight import (
 )
 
 pytestmark = pytest.mark.slow
-
-
-def fc_taken_us(obc: Obc) -> int:
-    """`Obc.fc_taken_us`, once the time reply is in (2 s at most)."""
-    deadline = time.monotonic() + 2.0
-    while (taken := obc.fc_taken_us()) is None and time.monotonic() < deadline:
-        time.sleep(0.01)
-    matcher = obc.decoder.round_trips
-    assert taken is not None, (
-        f"no time reply for the last fresh command: {obc.decoder.stats}, "
-        f"{matcher and (matcher.matched, matcher.rejected)}"
-    )
-    return taken
-
-
-def fc_elapsed_us(obc: Obc, since_us: int, timed_out: bool = False, **what: Any) -> int | None:
-    """`Obc.fc_elapsed_us` (`fc_timed_out_us` with `timed_out`), once the stream has brought
-    what it waits for (2 s at most)."""
-    deadline = time.monotonic() + 2.0
-    while time.monotonic() < deadline:
-        us = obc.fc_timed_out_us(since_us) if timed_out else obc.fc_elapsed_us(since_us, **what)
-        if us is not None:
-            return us
-        time.sleep(0.01)
-    return None
 
 
 @dataclass
@@ -144,11 +118,10 @@ def test_the_pilots_sticks_are_back_within_the_limit(piloted: Flight, failure: s
     try:
         back = watcher.wait(lambda s: near(s.rc[:STICKS], pilot_rc[:STICKS]), t0, 5.0)
         assert back is not None, f"{FAILURES[failure]}: the pilot's sticks never came back"
-        taken = fc_taken_us(obc)
         if failure == "closed":  # the stream broke off: the FC's timeout, from its status
-            us = fc_elapsed_us(obc, taken, timed_out=True)
+            us = obc.wait_fc_elapsed_us(timed_out=True)
         else:
-            us = fc_elapsed_us(obc, taken, sticks=lambda rc: near(rc, pilot_rc[:4]))
+            us = obc.wait_fc_elapsed_us(sticks=lambda rc: near(rc, pilot_rc[:4]))
         assert us is not None and us <= LIMIT_MS * 1000, f"{FAILURES[failure]}: {us} µs"
         time.sleep(0.5)  # the failure goes on: the pilot keeps the sticks, armed, no RXLOSS
         after = watcher.since(back.t)
@@ -186,10 +159,9 @@ def test_obc_alone_stuck_is_rx_loss_then_failsafe(sitl_binary: Path, tmp_path: P
             t0 = obc.behave("stuck")
             assert watcher.wait(lambda s: s.rx_loss, t0, 5.0), "no RXLOSS"
             assert watcher.wait(lambda s: not s.armed, t0, 10.0), "still armed"
-            taken = fc_taken_us(obc)
-            lost = fc_elapsed_us(obc, taken, status=lambda s: s.has(UplinkFlag.RX_LOSS))
+            lost = obc.wait_fc_elapsed_us(status=lambda s: s.has(UplinkFlag.RX_LOSS))
             assert lost is not None and lost <= LIMIT_MS * 1000, lost
-            stage2 = fc_elapsed_us(obc, taken, status=lambda s: not s.has(UplinkFlag.ARMED))
+            stage2 = obc.wait_fc_elapsed_us(status=lambda s: not s.has(UplinkFlag.ARMED))
             assert stage2 is not None and 1_500_000 <= stage2 <= 1_500_000 + LIMIT_MS * 1000, stage2
         finally:
             obc.stop()

@@ -423,6 +423,30 @@ class Obc:
         with self._lock:
             return self._taken.get(self.last_fresh_sent)
 
+    def wait_fc_elapsed_us(
+        self,
+        timeout: float = WAIT_S,
+        *,
+        timed_out: bool = False,
+        sticks: Callable[[tuple[int, ...]], bool] | None = None,
+        status: Callable[[UplinkStatus], bool] | None = None,
+    ) -> int | None:
+        """FC microseconds from the last fresh command (its time reply) to what `sticks` or
+        `status` asks (`fc_elapsed_us`), or to the FC's timeout (`timed_out`), once the
+        stream has brought it; None if it did not within `timeout` seconds."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            taken = self.fc_taken_us()
+            if taken is not None:
+                if timed_out:
+                    us = self.fc_timed_out_us(taken)
+                else:
+                    us = self.fc_elapsed_us(taken, sticks, status)
+                if us is not None:
+                    return us
+            time.sleep(0.01)
+        return None
+
     def fc_timed_out_us(self, since_us: int) -> int | None:
         """FC microseconds from `since_us` to the timeout an uplink status reports after it;
         None if none was read (yet)."""
@@ -635,17 +659,10 @@ class Preflight:
         reports it (the change itself comes at once, or with the radio's next frame)."""
         if seen is None:
             return None, "never"
-        deadline = time.monotonic() + 2.0
-        while (taken := self.obc.fc_taken_us()) is None and time.monotonic() < deadline:
-            time.sleep(0.01)
         closed = failure == "closed"
-        while taken is not None and time.monotonic() < deadline:
-            us = (
-                self.obc.fc_timed_out_us(taken) if closed else self.obc.fc_elapsed_us(taken, **what)
-            )
-            if us is not None:
-                return us / 1000, "FC clock: its timeout" if closed else "FC clock"
-            time.sleep(0.01)
+        us = self.obc.wait_fc_elapsed_us(timed_out=closed, **what)
+        if us is not None:
+            return us / 1000, "FC clock: its timeout" if closed else "FC clock"
         return ms_after(seen, t0), "host clock"
 
     def _wait_status(self, timeout: float) -> UplinkStatus | None:
