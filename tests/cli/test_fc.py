@@ -100,11 +100,30 @@ def test_configure_fsp_prints_what_it_changed(
     on_sitl: VirtualFC, capsys: pytest.CaptureFixture[str], tmp_path: Path
 ) -> None:
     code, out, err = run(capsys, "configure", "fsp", "--uart", "2", "--baud", "2000000",
-                         "--rate", "800", "--backup-dir", str(tmp_path))  # fmt: skip
+                         "--rate", "800", "--obc-only", "--failsafe-procedure", "drop",
+                         "--backup-dir", str(tmp_path))  # fmt: skip
     assert code == 0, err
     row = next(line for line in out.splitlines() if "fsp_rate_hz" in line)
     assert [cell.strip() for cell in row.split("│")[1:-1]][2:] == ["1100", "800", "ok"]
     assert "serial_update_rate_hz" in out and "features (MSP)" in out
+    assert "50 ms: RXLOSS (fsp_cmd_timeout_ms)" in err  # what losing the OBC means
+    assert "1500 ms: stage 2 (failsafe_delay): DROP" in err
+
+
+def test_configure_fsp_keeps_a_safety_pilot_unless_told(
+    on_sitl: VirtualFC, capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    """On an FC whose receiver is the MSP receiver the default (a safety pilot) is refused in
+    one line; --obc-only without its procedure is refused before the FC is touched."""
+    eeprom = _eeprom(on_sitl)
+    code, _, err = run(capsys, "configure", "fsp", "--uart", "2", "--baud", "2000000",
+                       "--backup-dir", str(tmp_path))  # fmt: skip
+    assert code == 2 and "the FC's receiver is the MSP receiver" in err and "--obc-only" in err
+    assert len(err.strip().splitlines()) <= 2  # the backup note, the error
+    code, _, err = run(capsys, "configure", "fsp", "--uart", "2", "--baud", "2000000",
+                       "--obc-only", "--backup-dir", str(tmp_path))  # fmt: skip
+    assert code == 2 and err.startswith("error: --obc-only needs --failsafe-procedure")
+    assert _eeprom(on_sitl) == eeprom
 
 
 @pytest.mark.parametrize("fields", [6, 8])

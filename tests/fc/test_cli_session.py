@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import pytest
-from wftool.fc.transport import open_port
 
 from tests.fc.stand_in import cli_stand_in
 from wftool.errors import CliCommandError
 from wftool.fc.cli_session import CliSession, Setting, parse_get
 from wftool.fc.msp import MspClient
+from wftool.link.transport import open_port
 from wftool.sitl.process import VirtualFC
 
 

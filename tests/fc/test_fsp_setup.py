@@ -1,4 +1,5 @@
-"""`configure fsp` against the patched SITL: the whole setup, or nothing."""
+"""`configure fsp` against the patched SITL: the whole setup, or nothing; a safety pilot by
+default, the OBC alone only when asked, with its failsafe spelled out."""
 
 from __future__ import annotations
 
@@ -10,20 +11,46 @@ import pytest
 from tests.conftest import fc_settings
 from wftool.errors import ParameterError
 from wftool.fc.cli_session import CliSession
-from wftool.fc.fsp_setup import FSP_FUNCTION, SerialPortConfig, fsp_planner, function_names
-from wftool.fc.msp import FEATURE_RX_MSP, MspClient
+from wftool.fc.fsp_setup import (
+    FSP_FUNCTION,
+    AuxRange,
+    ObcOnly,
+    SafetyPilot,
+    SerialPortConfig,
+    failsafe_outlook,
+    fsp_planner,
+    function_names,
+    override_mask,
+    parse_channel,
+    parse_range,
+)
+from wftool.fc.msp import FEATURE_RX_MSP, FEATURE_RX_UDP, RECEIVER_FEATURES, MspClient
 from wftool.fc.params import apply_plan, parse_cli_script, plan_from_assignments
 from wftool.sitl.process import VirtualFC
+
+OBC_ALONE = ObcOnly("drop")
 
 
 def _eeprom(fc: VirtualFC) -> bytes:
     return hashlib.sha256((fc.workdir / "eeprom.bin").read_bytes()).digest()
 
 
+def _cli(fc: VirtualFC, *commands: str) -> list[str]:
+    """The FC's answers to CLI `commands` (it leaves the CLI with `exit`)."""
+    session = CliSession.open(fc.url)
+    try:
+        return [session.run(command) for command in commands]
+    finally:
+        session.exit()
+        fc.wait_back()
+
+
 def test_fsp_replacing_functions_is_reported(virtual_fc: VirtualFC, tmp_path: Path) -> None:
     apply_plan(virtual_fc, parse_cli_script("serial UART2 2 115200 57600 0 115200", "s"), tmp_path)
     notes: list[str] = []
-    apply_plan(virtual_fc, fsp_planner(uart=2, baud=2_000_000), tmp_path, notes.append)
+    apply_plan(
+        virtual_fc, fsp_planner(uart=2, baud=2_000_000, control=OBC_ALONE), tmp_path, notes.append
+    )
     assert "UART2: FSP replaces GPS on this port" in notes
     assert any("no dshot_bidir" in note for note in notes)  # SITL has no DShot
 
@@ -33,7 +60,11 @@ def test_one_bad_setting_leaves_the_whole_setup_unapplied(
 ) -> None:
     eeprom = _eeprom(virtual_fc)
     with pytest.raises(ParameterError, match="fsp_rate_hz = 9000: out of range"):
-        apply_plan(virtual_fc, fsp_planner(uart=2, baud=2_000_000, rate_hz=9000), tmp_path)
+        apply_plan(
+            virtual_fc,
+            fsp_planner(uart=2, baud=2_000_000, rate_hz=9000, control=OBC_ALONE),
+            tmp_path,
+        )
     assert _eeprom(virtual_fc) == eeprom
     session = CliSession.open(virtual_fc.url)
     try:
@@ -53,7 +84,9 @@ def test_fsp_cannot_take_the_only_msp_port(virtual_fc: VirtualFC, tmp_path: Path
 
 def test_patched_firmware_gets_fully_configured(virtual_fc: VirtualFC, tmp_path: Path) -> None:
     apply_plan(virtual_fc, plan_from_assignments(["acc_rpm_filter_harmonics=2"]), tmp_path)
-    report = apply_plan(virtual_fc, fsp_planner(uart=2, baud=2_000_000, rate_hz=1000), tmp_path)
+    report = apply_plan(
+        virtual_fc, fsp_planner(uart=2, baud=2_000_000, rate_hz=1000, control=OBC_ALONE), tmp_path
+    )
     after = {row.name: row.after for row in report.rows}
     assert after["fsp_rate_hz"] == "1000"
     assert after["acc_rpm_filter_harmonics"] == "1"  # back to the default the setup asks for
@@ -86,7 +119,101 @@ def test_serial_line_round_trip_and_function_names() -> None:
 def test_serial_update_rate_can_be_chosen(virtual_fc: VirtualFC, tmp_path: Path) -> None:
     """The paper's MSP baseline ran a 1 kHz serial task: the setup takes the rate asked."""
     report = apply_plan(
-        virtual_fc, fsp_planner(uart=2, baud=2_000_000, serial_update_rate_hz=1000), tmp_path
+        virtual_fc,
+        fsp_planner(uart=2, baud=2_000_000, serial_update_rate_hz=1000, control=OBC_ALONE),
+        tmp_path,
     )
     assert report.mismatches == []
     assert fc_settings(virtual_fc, "serial_update_rate_hz") == {"serial_update_rate_hz": "1000"}
+
+
+def test_a_safety_pilot_by_default_keeps_the_radio_and_overrides_the_sticks(
+    virtual_fc: VirtualFC, tmp_path: Path
+) -> None:
+    """The virtual FC's simulated radio as the receiver, the override on AUX2 (slot of its
+    own), the sticks masked through the FC's map, the link never kept alive by the OBC."""
+    apply_plan(virtual_fc, parse_cli_script("map TAER1234\naux 0 0 0 1700 2100 0 0", "s"), tmp_path)
+    planner = fsp_planner(uart=2, baud=2_000_000, radio_feature=FEATURE_RX_UDP)
+    notes: list[str] = []
+    report = apply_plan(virtual_fc, planner, tmp_path, notes.append)
+    after = {row.name: row.after for row in report.rows}
+    assert report.mismatches == []
+    assert after["msp_override_channels_mask"] == "15"
+    assert after["msp_override_failsafe"] == "OFF"
+    assert after["fsp_cmd_timeout_ms"] == "50"
+    with MspClient.open(virtual_fc.url) as msp:
+        assert msp.features() & RECEIVER_FEATURES == FEATURE_RX_UDP
+    [aux] = _cli(virtual_fc, "aux")
+    used = [AuxRange.parse(line) for line in aux.splitlines() if line.startswith("aux ")]
+    assert [r for r in used if r.usable] == [
+        AuxRange(0, 0, 0, 1700, 2100),  # the pilot's ARM, untouched
+        AuxRange(1, 50, 1, 1700, 2100),  # MSP OVERRIDE on AUX2
+    ]
+    assert any("MSP OVERRIDE on AUX2 1700-2100" in note for note in notes)
+
+
+def test_a_safety_pilot_needs_the_radio_as_the_receiver(virtual_fc: VirtualFC, tmp_path: Path):
+    eeprom = _eeprom(virtual_fc)  # a fresh SITL: the MSP receiver
+    with pytest.raises(ParameterError, match="the FC's receiver is the MSP receiver"):
+        apply_plan(virtual_fc, fsp_planner(uart=2, baud=2_000_000), tmp_path)
+    assert _eeprom(virtual_fc) == eeprom
+
+
+def test_the_override_switch_is_not_the_arm_switch(virtual_fc: VirtualFC, tmp_path: Path) -> None:
+    apply_plan(virtual_fc, parse_cli_script("aux 3 0 1 1300 2100 0 0", "s"), tmp_path)
+    eeprom = _eeprom(virtual_fc)
+    planner = fsp_planner(
+        uart=2, baud=2_000_000, control=SafetyPilot(switch=2), radio_feature=FEATURE_RX_UDP
+    )
+    with pytest.raises(ParameterError, match=r"AUX2 carries ARM \(aux 3: ARM on AUX2 1300-2100"):
+        apply_plan(virtual_fc, planner, tmp_path)
+    assert _eeprom(virtual_fc) == eeprom
+
+
+def test_obc_alone_refuses_modes_on_aux1_aux2(virtual_fc: VirtualFC, tmp_path: Path) -> None:
+    apply_plan(virtual_fc, parse_cli_script("aux 2 1 1 900 1300 0 0", "s"), tmp_path)
+    eeprom = _eeprom(virtual_fc)
+    with pytest.raises(ParameterError, match=r"FSP never drives AUX1/AUX2.*ANGLE on AUX2 900-1300"):
+        apply_plan(virtual_fc, fsp_planner(uart=2, baud=2_000_000, control=OBC_ALONE), tmp_path)
+    assert _eeprom(virtual_fc) == eeprom
+
+
+def test_obc_alone_sets_the_procedure_and_says_what_loss_means(
+    virtual_fc: VirtualFC, tmp_path: Path
+) -> None:
+    apply_plan(virtual_fc, plan_from_assignments(["failsafe_delay=10"]), tmp_path)
+    notes: list[str] = []
+    planner = fsp_planner(uart=2, baud=2_000_000, control=ObcOnly("land"), cmd_timeout_ms=40)
+    report = apply_plan(virtual_fc, planner, tmp_path, notes.append)
+    after = {row.name: row.after for row in report.rows}
+    assert (after["failsafe_procedure"], after["fsp_cmd_timeout_ms"]) == ("AUTO-LAND", "40")
+    text = "\n".join(notes)
+    assert "40 ms: RXLOSS" in text and "300 ms: sticks centred, throttle at rx_min_usec" in text
+    assert "1000 ms: stage 2 (failsafe_delay): AUTO-LAND" in text
+    with MspClient.open(virtual_fc.url) as msp:
+        assert msp.features() & RECEIVER_FEATURES == FEATURE_RX_MSP
+
+
+def test_failsafe_outlook_reads_the_settings() -> None:
+    settings = {
+        "failsafe_delay": "15", "failsafe_landing_time": "60", "failsafe_throttle": "1000",
+        "rx_min_usec": "885",
+    }  # fmt: skip
+    lines = failsafe_outlook(settings, 50, "DROP")
+    assert lines[1].startswith("  50 ms: RXLOSS")
+    assert lines[3] == (
+        "  1500 ms: stage 2 (failsafe_delay): DROP: the motors stop and the FC disarms — the "
+        "aircraft falls"
+    )
+
+
+def test_switch_range_and_mask_parsing() -> None:
+    assert parse_channel("aux2") == 2 and parse_range("1700-2100") == (1700, 2100)
+    for bad in ("AUX0", "AUX15", "CH5"):
+        with pytest.raises(ValueError, match="expected AUX1-AUX14"):
+            parse_channel(bad)
+    for bad in ("1700", "2100-1700", "1710-2100", "800-1000"):
+        with pytest.raises(ValueError):
+            parse_range(bad)
+    assert override_mask([0, 1, 3, 2, 4, 5, 6, 7]) == 15  # AETR1234
+    assert override_mask([1, 2, 3, 0, 4, 5, 6, 7]) == 15  # TAER1234

@@ -215,8 +215,8 @@ BACKUP_HEADER = (
 def test_restore_plan_selects_the_recorded_receiver() -> None:
     plan = parse_cli_script(BACKUP_HEADER + "# version\nset a = 1\n", "b.txt")
     assert plan.features == FeatureChange(
-        enable=1 << 14, disable=(1 << 0) | (1 << 3) | (1 << 13) | (1 << 25)
-    )
+        enable=1 << 14, disable=(1 << 0) | (1 << 1) | (1 << 3) | (1 << 13) | (1 << 25)
+    )  # every other receiver: RX_PPM, RX_UDP (the virtual FC's radio), RX_SERIAL, ..._PWM, _SPI
 
 
 def test_restore_replays_the_dump_and_takes_the_mask_from_the_header_only() -> None:

@@ -1,4 +1,5 @@
-"""spec/vectors' E2 time reply vectors are the firmware encoder's own output, byte for byte.
+"""spec/vectors' E2 time reply and E3 uplink status vectors are the firmware encoder's own
+output, byte for byte.
 
 The series' unit test writes them when FSP_VECTORS_DIR is set; the Python decoder is checked
 against these files (tests/fsp/test_vectors.py), so it is checked against the C encoder.
@@ -23,10 +24,15 @@ FIRMWARE_VECTORS = (
     "time_reply.expected.json",
     "time_reply_stream.bin",
     "time_reply_stream.expected.json",
+    "uplink_status.bin",
+    "uplink_status.expected.json",
+    "uplink_status_stream.bin",
+    "uplink_status_stream.expected.json",
 )
+WRITERS = "FspTimeReplyTest.WritesConformanceVectors:FspUplinkStatusTest.WritesConformanceVectors"
 
 
-def test_time_reply_vectors_are_the_firmware_encoders_output(
+def test_e2_e3_vectors_are_the_firmware_encoders_output(
     fresh_clone: Project, sitl_build, vectors_dir: Path, tmp_path: Path
 ) -> None:
     if shutil.which("clang") is None:
@@ -35,7 +41,7 @@ def test_time_reply_vectors_are_the_firmware_encoders_output(
     assert run.passed, run.output[-2000:]
     binary = fresh_clone.tree / "obj" / "test" / "fsp_unittest" / "fsp_unittest"
     subprocess.run(
-        [str(binary), "--gtest_filter=FspTimeReplyTest.WritesConformanceVectors"],
+        [str(binary), f"--gtest_filter={WRITERS}"],
         env={**os.environ, "FSP_VECTORS_DIR": str(tmp_path)},
         cwd=tmp_path,
         check=True,

@@ -41,7 +41,10 @@ np = pytest.importorskip("numpy", reason="the columnar decoder needs wftool[anal
 from wftool.fsp import columns  # noqa: E402 - after the NumPy check
 from wftool.fsp.columns import StateColumns, decode_columns  # noqa: E402
 
-STATE_VECTORS = ["state_base", "state_e1_wrap", "state_mavlink", "state_damaged"]
+STATE_VECTORS = [
+    "state_base", "state_e1_wrap", "state_mavlink", "state_damaged", "time_reply_stream",
+    "uplink_status_stream",
+]  # fmt: skip
 PERIOD = 953
 
 

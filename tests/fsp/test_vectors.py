@@ -10,13 +10,27 @@ from typing import Any
 import pytest
 
 from wftool.fsp import CommandDecoder, CommandPacket, SensorFrame, StateDecoder, StatePacket
-from wftool.fsp.encoder import encode_command, encode_state, encode_time_reply
-from wftool.fsp.framing import STATE_E2_VERSIONS, Deframer, Rejection
+from wftool.fsp.encoder import (
+    encode_command,
+    encode_state,
+    encode_time_reply,
+    encode_uplink_status,
+)
+from wftool.fsp.framing import (
+    STATE_E2_VERSIONS,
+    STATE_VERSIONS,
+    Deframer,
+    Rejection,
+)
 from wftool.fsp.packets import (
     TIME_REPLY_LENGTH,
+    UPLINK_STATUS_LENGTH,
     TimeReply,
+    UplinkFlag,
+    UplinkStatus,
     parse_state,
     parse_time_reply,
+    parse_uplink_status,
 )
 from wftool.link.crc import crc8
 
@@ -118,7 +132,7 @@ def test_e1_wrap_vector_accounting(vectors_dir: Path) -> None:
     assert (stats.wraps, stats.resets) == (1, 0)
 
 
-# -- E2 time replies: vectors written by the firmware's own C encoder (spec §10) --------------
+# -- E2 time replies and E3 uplink statuses: vectors written by the firmware's own C encoder --
 
 REPLY_FIELDS = ("command_seq", "command_tx_time_us", "rx_time_us", "tx_time_us")
 
@@ -129,38 +143,58 @@ def reply_as_json(reply: TimeReply) -> dict[str, Any]:
     }
 
 
-def decode_e2(wire: bytes) -> list[dict[str, Any]]:
-    """Every packet of an E2 stream in order, as the vectors' JSON."""
+STATUS_FIELDS = (
+    "command_seq", "tx_time_us", "accepted", "stale", "timeouts", "rejected", "timeout_ms",
+    "flags", "failsafe_phase", "timed_out_us",
+)  # fmt: skip
+MIXED_VECTORS = ["time_reply", "time_reply_stream", "uplink_status", "uplink_status_stream"]
+"""Written by the firmware's own C encoder: E2 time replies (§10), E3 uplink statuses (§12)."""
+
+
+def status_as_json(status: UplinkStatus) -> dict[str, Any]:
+    return {"type": "uplink_status", "version": status.version} | {
+        name: getattr(status, name) for name in STATUS_FIELDS
+    }
+
+
+def decode_mixed(wire: bytes) -> list[dict[str, Any]]:
+    """Every packet of a stream with time replies and uplink statuses, in order, as the
+    vectors' JSON."""
+
+    def as_json(payload: bytes) -> dict[str, Any]:
+        if len(payload) == TIME_REPLY_LENGTH:
+            return reply_as_json(parse_time_reply(payload))
+        if len(payload) == UPLINK_STATUS_LENGTH:
+            return status_as_json(parse_uplink_status(payload))
+        return {"type": "state"} | packet_as_json(parse_state(payload))
+
     deframer = Deframer(STATE_E2_VERSIONS)
-    decoded = [
-        reply_as_json(parse_time_reply(payload))
-        if len(payload) == TIME_REPLY_LENGTH
-        else {"type": "state"} | packet_as_json(parse_state(payload))
-        for payload in deframer.feed(wire)
-    ]
+    decoded = [as_json(payload) for payload in deframer.feed(wire)]
     assert not any(deframer.rejected.values()), deframer.rejected
     return decoded
 
 
-def encode_e2(packets: list[dict[str, Any]]) -> bytes:
-    return b"".join(
-        encode_time_reply(TimeReply(*(p[name] for name in REPLY_FIELDS)))
-        if p["type"] == "time_reply"
-        else encode_state(packet_from_json({k: v for k, v in p.items() if k != "type"}))
-        for p in packets
-    )
+def encode_mixed(packets: list[dict[str, Any]]) -> bytes:
+    def encode(p: dict[str, Any]) -> bytes:
+        if p["type"] == "time_reply":
+            return encode_time_reply(TimeReply(*(p[name] for name in REPLY_FIELDS)))
+        if p["type"] == "uplink_status":
+            return encode_uplink_status(UplinkStatus(*(p[name] for name in STATUS_FIELDS)))
+        return encode_state(packet_from_json({k: v for k, v in p.items() if k != "type"}))
+
+    return b"".join(map(encode, packets))
 
 
-@pytest.mark.parametrize("name", ["time_reply", "time_reply_stream"])
-def test_time_reply_vector_decodes_exactly(vectors_dir: Path, name: str) -> None:
+@pytest.mark.parametrize("name", MIXED_VECTORS)
+def test_firmware_vector_decodes_exactly(vectors_dir: Path, name: str) -> None:
     wire, expected = load(vectors_dir, name)
-    assert decode_e2(wire) == expected["packets"]
+    assert decode_mixed(wire) == expected["packets"]
 
 
-@pytest.mark.parametrize("name", ["time_reply", "time_reply_stream"])
-def test_time_reply_vector_encodes_byte_for_byte(vectors_dir: Path, name: str) -> None:
+@pytest.mark.parametrize("name", MIXED_VECTORS)
+def test_firmware_vector_encodes_byte_for_byte(vectors_dir: Path, name: str) -> None:
     wire, expected = load(vectors_dir, name)
-    assert encode_e2(expected["packets"]) == wire
+    assert encode_mixed(expected["packets"]) == wire
 
 
 def test_plain_v5_decoder_rejects_each_time_reply_as_one_chunk(vectors_dir: Path) -> None:
@@ -175,3 +209,41 @@ def test_plain_v5_decoder_rejects_each_time_reply_as_one_chunk(vectors_dir: Path
     assert decoder.stats.errors == decoder.stats.rejected[Rejection.LENGTH]
     assert decoder.stats.errors == plain["rejected_chunks"]
     assert (decoder.stats.lost_packets, decoder.stats.lost_frames) == (0, 0)
+
+
+# -- E3 uplink statuses (spec §12) ---------------------------------------------------------
+
+
+def test_state_decoder_takes_uplink_statuses_between_the_packets(vectors_dir: Path) -> None:
+    wire, expected = load(vectors_dir, "uplink_status_stream")
+    decoder = StateDecoder()
+    seen: list[tuple[int, int]] = []  # (state packets so far, accepted) at each status
+    for byte in wire:  # byte by byte: a status completes between two state packets
+        before = decoder.uplink_status
+        decoder.feed(bytes([byte]))
+        if decoder.uplink_status is not before:
+            assert decoder.uplink_status is not None
+            seen.append((decoder.stats.packets, decoder.uplink_status.accepted))
+    statuses = [p for p in expected["packets"] if p["type"] == "uplink_status"]
+    assert decoder.stats.errors == 0
+    assert decoder.stats.uplink_statuses == len(statuses)
+    assert seen == [(2, 40), (5, 41), (8, 41)]
+    last = decoder.uplink_status
+    assert last is not None and status_as_json(last) == statuses[-1]
+    assert last.has(UplinkFlag.OVERRIDE) and not last.has(UplinkFlag.LIVE)
+    assert last.failsafe_phase_name == "IDLE"
+    packet = decoder.last_packet  # the status was sent 40 µs after it, by the FC clock
+    assert packet is not None and packet.time_us is not None
+    assert last.sent_us == packet.time_us + 40
+    assert last.timed_out_at_us == last.sent_us - (last.tx_time_us - last.timed_out_us)
+
+
+def test_plain_v5_decoder_rejects_each_uplink_status_as_one_chunk(vectors_dir: Path) -> None:
+    """A v5 reader without E3 (here: a Deframer of state packets only) loses nothing else."""
+    wire, expected = load(vectors_dir, "uplink_status_stream")
+    deframer = Deframer(STATE_VERSIONS)
+    states = [packet_as_json(parse_state(p)) for p in deframer.feed(wire)]
+    plain = expected["plain_v5"]
+    assert len(states) == plain["state_packets"]
+    assert sum(deframer.rejected.values()) == deframer.rejected[Rejection.LENGTH]
+    assert deframer.rejected[Rejection.LENGTH] == plain["rejected_chunks"]

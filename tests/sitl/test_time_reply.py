@@ -43,15 +43,19 @@ def test_time_reply_is_off_by_default(sitl_binary: Path, tmp_path: Path) -> None
     assert decoder.stats.time_replies == 0 and decoder.stats.errors == 0
 
 
-def test_time_reply_answers_every_command_once(sitl_binary: Path, tmp_path: Path) -> None:
+def test_time_reply_answers_every_fresh_command_once(sitl_binary: Path, tmp_path: Path) -> None:
+    """The first command of a sequence only sets the FC's reference (spec §11): the other 99
+    are fresh, and each is answered once."""
     session = VirtualFcSession(sitl_binary, tmp_path, port_base=None, time_reply=True)
     with session:
         decoder = exchange(session, 100)
     matcher = decoder.round_trips
     assert matcher is not None
     assert decoder.stats.errors == 0 and decoder.stats.lost_frames == 0
-    assert matcher.matched == decoder.stats.time_replies == 100
+    assert matcher.matched == decoder.stats.time_replies == 99
     assert not any(matcher.rejected.values())
+    status = decoder.uplink_status
+    assert status is not None and (status.accepted, status.stale) == (99, 1)
 
 
 def test_two_commands_in_one_task_run_get_one_reply_for_the_newest(

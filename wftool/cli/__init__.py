@@ -15,7 +15,7 @@ from rich.console import Console
 from rich.text import Text
 
 from wftool import __version__
-from wftool.cli import analyze, bench, build, fc, paper, record, ros2, sitl, verify
+from wftool.cli import analyze, bench, build, fc, paper, preflight, record, ros2, sitl, verify
 from wftool.display import printable, shown
 from wftool.errors import EXIT_USAGE, Terminated, WftoolError
 from wftool.interrupts import raise_for
@@ -29,7 +29,7 @@ def cli() -> None:
     """Build, flash, configure and verify the Weitflug research firmware."""
 
 
-for _module in (build, fc, verify, record, sitl, ros2, bench, analyze, paper):
+for _module in (build, fc, verify, preflight, record, sitl, ros2, bench, analyze, paper):
     for _command in _module.COMMANDS:
         cli.add_command(_command)
 

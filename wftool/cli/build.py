@@ -15,7 +15,7 @@ from rich.text import Text
 
 from wftool.cli.progress import BYTES, UNITS, ProgressBars
 from wftool.display import shown
-from wftool.errors import BuildError, PatchError
+from wftool.errors import BuildError, PatchError, UsageError
 from wftool.firmware import (
     BuildFlags,
     BuildOptions,
@@ -263,14 +263,17 @@ def patches_export(project_dir: Path | None) -> None:
 
 @patches_group.command("test")
 @click.argument("names", nargs=-1)
+@click.option("--all", "everything", is_flag=True, help="All of Betaflight's unit tests.")
 @project_option
-def patches_test(names: tuple[str, ...], project_dir: Path | None) -> None:
+def patches_test(names: tuple[str, ...], everything: bool, project_dir: Path | None) -> None:
     """Run Betaflight unit tests on the patched tree (default: the ones the series adds)."""
     from wftool.firmware.unittests import run_unit_tests
 
+    if everything and names:
+        raise UsageError("--all runs every unit test: leave out NAMES")
     project = project_from(project_dir)
     with locked(project):
-        runs = run_unit_tests(project, list(names) or None)
+        runs = run_unit_tests(project, list(names) or None, everything=everything)
     for run in runs:
         mark = ("pass", "green") if run.passed else ("FAIL", "red")
         out.print(Text.assemble("  ", mark, "  ", shown(run.name)))

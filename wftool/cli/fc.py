@@ -12,10 +12,20 @@ from rich.text import Text
 from wftool import doctor as doctor_checks
 from wftool.cli.progress import PERCENT, ProgressBars
 from wftool.display import shown
-from wftool.errors import ProtocolError, WftoolError
+from wftool.errors import ProtocolError, UsageError, WftoolError
 from wftool.fc.backup import DEFAULT_BACKUP_DIR
 from wftool.fc.board import Board, SerialBoard, leave_open_cli
-from wftool.fc.fsp_setup import fsp_planner
+from wftool.fc.fsp_setup import (
+    CMD_TIMEOUT_MS_DEFAULT,
+    CMD_TIMEOUT_MS_RANGE,
+    FAILSAFE_PROCEDURES,
+    Control,
+    ObcOnly,
+    SafetyPilot,
+    fsp_planner,
+    parse_channel,
+    parse_range,
+)
 from wftool.fc.msp import MspClient
 from wftool.fc.params import (
     ChangeReport,
@@ -130,11 +140,81 @@ def configure() -> None:
     show_default=True,
     help="Target FSP sample rate (fsp_rate_hz).",
 )
+@click.option(
+    "--override-switch", metavar="AUXn", default="AUX2", show_default=True,
+    help="The pilot's switch that hands roll, pitch, yaw and throttle to the OBC "
+    "(the MSP OVERRIDE mode); ARM and the switch stay with the pilot.",
+)  # fmt: skip
+@click.option(
+    "--override-range", metavar="START-END", default="1700-2100", show_default=True,
+    help="Where the switch is on, in µs.",
+)  # fmt: skip
+@click.option(
+    "--cmd-timeout-ms", type=click.IntRange(*CMD_TIMEOUT_MS_RANGE),
+    default=CMD_TIMEOUT_MS_DEFAULT, show_default=True,
+    help="fsp_cmd_timeout_ms: this long after its last fresh command the OBC counts as gone.",
+)  # fmt: skip
+@click.option(
+    "--obc-only", is_flag=True,
+    help="No safety pilot: the OBC is the FC's only receiver (feature RX_MSP). Needs "
+    "--failsafe-procedure.",
+)  # fmt: skip
+@click.option(
+    "--failsafe-procedure", type=click.Choice(list(FAILSAFE_PROCEDURES)),
+    help="With --obc-only: what the FC does when the OBC is gone (failsafe stage 2).",
+)  # fmt: skip
 @port_option
 @backup_dir_option
-def configure_fsp(uart: int, baud: int, rate: int, port: str | None, backup_dir: Path) -> None:
-    """Set up FSP on a UART: port, MSP receiver, bidir DShot, RPM filters, rates."""
-    _apply(port, fsp_planner(uart, baud, rate), backup_dir)
+def configure_fsp(
+    uart: int, baud: int, rate: int, override_switch: str, override_range: str,
+    cmd_timeout_ms: int, obc_only: bool, failsafe_procedure: str | None, port: str | None,
+    backup_dir: Path,
+) -> None:  # fmt: skip
+    """Set up FSP on a UART: port, who flies, command timeout, bidir DShot, RPM filters, rates.
+
+    By default the board's radio stays its receiver and the OBC's commands override roll,
+    pitch, yaw and throttle only while the pilot's --override-switch is on; a silent, stuck
+    or garbled OBC hands them back to the pilot within --cmd-timeout-ms. --obc-only makes
+    the OBC the only receiver: when it is gone, Betaflight's failsafe does what
+    --failsafe-procedure says, and no human can take over.
+    """
+    control = _control(obc_only, failsafe_procedure, override_switch, override_range)
+    _apply(
+        port,
+        fsp_planner(uart, baud, rate, control=control, cmd_timeout_ms=cmd_timeout_ms),
+        backup_dir,
+    )
+
+
+def _control(obc_only: bool, procedure: str | None, switch: str, on_range: str) -> Control:
+    """Who flies, from the options; bad combinations refused before the FC is touched."""
+    source = click.get_current_context()
+    switch_given = (
+        source.get_parameter_source("override_switch") != click.core.ParameterSource.DEFAULT
+    )
+    range_given = (
+        source.get_parameter_source("override_range") != click.core.ParameterSource.DEFAULT
+    )
+    if obc_only:
+        if procedure is None:
+            raise UsageError(
+                "--obc-only needs --failsafe-procedure drop|land|gps-rescue: what the FC does "
+                "when the OBC is gone, since no pilot can take over"
+            )
+        if switch_given or range_given:
+            raise UsageError(
+                "--override-switch/--override-range are for a safety pilot, not --obc-only"
+            )
+        return ObcOnly(procedure)
+    if procedure is not None:
+        raise UsageError(
+            "--failsafe-procedure is for --obc-only; with a safety pilot losing the radio is "
+            "the board's own failsafe set-up"
+        )
+    try:
+        return SafetyPilot(parse_channel(switch), parse_range(on_range))
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
 
 
 @click.command()

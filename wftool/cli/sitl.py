@@ -91,6 +91,13 @@ rate_option = click.option(
     help="The MSP port's baud rate (UART1; it counts with --uart-pacing) [115200].",
 )
 @click.option(
+    "--pilot",
+    is_flag=True,
+    help="A safety pilot: the simulated radio (SITL's RC input) is the receiver, ARM on its "
+    "AUX1, and the OBC's commands override the sticks while its AUX2 switch is on (held on; "
+    "sticks centred, throttle low, disarmed). Without it the OBC flies alone (RX_MSP).",
+)
+@click.option(
     "--verify",
     "verify_s",
     type=float,
@@ -123,17 +130,21 @@ rate_option = click.option(
 def sitl(
     binary: Path | None, workdir: Path | None, rate_hz: int, motion: bool, time_reply: bool,
     paper: bool, gyro_hz: int | None, gyro_clock_hz: float | None, uart_pacing: bool,
-    msp_baud: int | None,
+    msp_baud: int | None, pilot: bool,
     verify_s: float | None, port_base: int, project_dir: Path | None, ros2: bool,
     **options: Any,
 ) -> None:  # fmt: skip
     """Run the virtual FC: the patched SITL with FSP on UART2, until Ctrl-C (or --verify).
 
+    Flown by the OBC alone (the MSP receiver), or with --pilot by a safety pilot's simulated
+    radio with the OBC overriding the sticks on its switch.
+
     With --verify it is judged as a board is: the frame rate against what fsp_rate_hz gives at
     the FC's PID looptime (read over MSP), unless --expected-rate says otherwise. Without it,
     --record, --csv, --foxglove and --ros2 read the stream for as long as the FC runs.
     """
-    from wftool.sitl.session import Motion, VirtualFcSession
+    from wftool.sitl.radio import HIGH
+    from wftool.sitl.session import PILOT_ARM, PILOT_OVERRIDE, Motion, VirtualFcSession
 
     check_duration(verify_s, "--verify")
     if options["accept_commands"] and not ros2:
@@ -162,7 +173,7 @@ def sitl(
     session = VirtualFcSession(
         binary, workdir, rate_hz=rate_hz, motion=Motion() if motion else None,
         port_base=port_base or None, time_reply=time_reply, board=board, msp_baud=msp_baud,
-        serial_update_rate_hz=serial_update_rate_hz,
+        serial_update_rate_hz=serial_update_rate_hz, pilot=pilot,
     )  # fmt: skip
     err.print(shown(f"starting the virtual FC in {workdir} …"))
     with session:
@@ -173,6 +184,12 @@ def sitl(
                 "FSP      ", shown(session.fsp_url, "bold"), f"  (fsp_rate_hz {rate_hz}{replies})"
             )
         )
+        if session.radio is not None:
+            session.radio.set({f"aux{PILOT_OVERRIDE}": HIGH})
+            err.print(
+                f"pilot    the simulated radio on UDP {session.fc.sim_rc_port}: ARM on "
+                f"AUX{PILOT_ARM} (off), override on AUX{PILOT_OVERRIDE} (on)"
+            )
         if options["expected_rate"] is None:
             options["expected_rate"] = session.expected_rate_hz
         if ros2:

@@ -41,8 +41,17 @@ def series_tests(project: Project) -> list[str]:
     return sorted(f"test_{m.group(1)}" for m in map(_UNIT_TEST.match, added.splitlines()) if m)
 
 
-def run_unit_tests(project: Project, names: list[str] | None = None) -> list[UnitTestRun]:
-    """Apply the series, check out the test tree, run NAMES (default: the series' tests)."""
+def all_tests(project: Project) -> list[str]:
+    """Every unit test of the patched tree (Betaflight's and the series'), as make targets."""
+    unit = project.tree / "src" / "test" / "unit"
+    return sorted(f"test_{path.stem}" for path in unit.glob("*_unittest.cc"))
+
+
+def run_unit_tests(
+    project: Project, names: list[str] | None = None, *, everything: bool = False
+) -> list[UnitTestRun]:
+    """Apply the series, check out the test tree, run NAMES (default: the series' tests;
+    `everything`: all of them, Betaflight's `make test`)."""
     missing = [c for c in _TEST_COMPILERS if shutil.which(c) is None]
     if missing:
         raise ToolchainError(
@@ -51,6 +60,8 @@ def run_unit_tests(project: Project, names: list[str] | None = None) -> list[Uni
     tree.ensure_tree(project, resolve_target(project, SITL), allow_dirty=True)
     patches.apply(project, override="run `wftool patches apply --force`")
     _check_out_tests(project.tree)
+    if everything:
+        names = all_tests(project)
     runs = []
     for name in names if names is not None else series_tests(project):
         proc = subprocess.run(

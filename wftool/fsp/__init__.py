@@ -13,10 +13,23 @@ from wftool.fsp.clock import (
     RoundTripObserver,
 )
 from wftool.fsp.decoder import CommandDecoder, StateDecoder, StreamStats
-from wftool.fsp.encoder import CommandSender, encode_command, encode_state, encode_time_reply
+from wftool.fsp.encoder import (
+    CommandSender,
+    encode_command,
+    encode_state,
+    encode_time_reply,
+    encode_uplink_status,
+)
 from wftool.fsp.estimators import ESTIMATORS, ONE_WAY_ESTIMATORS, make_estimator
 from wftool.fsp.framing import Rejection
-from wftool.fsp.packets import CommandPacket, SensorFrame, StatePacket, TimeReply
+from wftool.fsp.packets import (
+    CommandPacket,
+    SensorFrame,
+    StatePacket,
+    TimeReply,
+    UplinkFlag,
+    UplinkStatus,
+)
 from wftool.fsp.reader import DEFAULT_BAUDRATE, FspPort, FspReader
 from wftool.fsp.twoway import (
     RoundTrip,
@@ -52,8 +65,11 @@ __all__ = [
     "TimeReply",
     "TwoWayClockEstimator",
     "TwoWayState",
+    "UplinkFlag",
+    "UplinkStatus",
     "encode_command",
     "encode_state",
     "encode_time_reply",
+    "encode_uplink_status",
     "make_estimator",
 ]

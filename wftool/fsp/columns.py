@@ -33,7 +33,7 @@ from wftool.fsp.decoder import (
     follows,
     restarted,
 )
-from wftool.fsp.framing import STATE_VERSIONS, Rejection, longest_chunk
+from wftool.fsp.framing import STATE_VERSIONS, STREAM_VERSIONS, Rejection, longest_chunk
 from wftool.fsp.packets import (
     DROPS_MODULUS,
     FRAME_LAYOUT,
@@ -44,9 +44,10 @@ from wftool.fsp.packets import (
     STATE_LENGTH,
     TRAILER_LAYOUT,
     TUNNEL_LAYOUT,
+    UPLINK_STATUS_LENGTH,
     Layout,
 )
-from wftool.link.crc import crc8_check_words
+from wftool.link.crc import crc8, crc8_check_words
 
 if TYPE_CHECKING:
     import numpy as np
@@ -59,7 +60,7 @@ _SCAN_BYTES = 1 << 20
 """Bytes deframed at a time: what a block of garbage costs, at most, while it is read."""
 _SMALL = 16
 """A block of rows this small whose joint decode fails is decoded row by row."""
-_MAX_CHUNK = longest_chunk(STATE_VERSIONS)
+_MAX_CHUNK = longest_chunk(STREAM_VERSIONS)
 assert max(STATE_VERSIONS) < 254  # so every COBS encoding of a state packet is 1 byte longer
 
 
@@ -194,7 +195,7 @@ def decode_columns(
 
     stats = StreamStats(bytes=size, rejected=dict.fromkeys(Rejection, 0))
     parts: dict[str, list] = {}
-    for block in _deframe(np, data, buf, read_ends, cuts, stats.rejected):
+    for block in _deframe(np, data, buf, read_ends, cuts, stats):
         for name, part in _block_columns(np, *block).items():
             parts.setdefault(name, []).append(part)
     if not parts:
@@ -312,16 +313,23 @@ def _boundaries(
 
 
 def _deframe(
-    np: Any, data: bytes, buf: np.ndarray, read_ends: np.ndarray, cuts: np.ndarray, rejected: dict
+    np: Any,
+    data: bytes,
+    buf: np.ndarray,
+    read_ends: np.ndarray,
+    cuts: np.ndarray,
+    stats: StreamStats,
 ) -> Iterator[tuple[np.ndarray, np.ndarray]]:
     """Blocks of accepted packets: (delimiter position of each, its record), in stream
-    order within each packet length and scan block. Counts the rejections as it goes.
+    order within each packet length and scan block. Counts the rejections, and the uplink
+    statuses (E3) between the packets, as it goes.
 
     Mirrors `framing.Deframer` fed read by read: a chunk is dropped undecoded (LENGTH) when
     at the end of some read more than `_MAX_CHUNK` of it had arrived; a chunk that no
     delimiter completes is pending, not rejected, and so is one cut off at `cuts`, where the
     byte stream broke (`Deframer.resync`): the next chunk begins there.
     """
+    rejected = stats.rejected
     bounds = np.concatenate(([0], read_ends))
     encoded = {length + 1: length for length in STATE_VERSIONS}
     after = 0  # where the next chunk begins: past the last delimiter, or right at the cut
@@ -340,11 +348,18 @@ def _deframe(
         other = complete & ~candidate
         for start, end in zip(starts[other].tolist(), ends[other].tolist()):
             try:
-                cobs.decode(data[start:end])
+                payload = cobs.decode(data[start:end])
             except cobs.DecodeError:
                 rejected[Rejection.COBS] += 1
+                continue
+            if len(payload) != UPLINK_STATUS_LENGTH:
+                rejected[Rejection.LENGTH] += 1  # no other length can decode to a packet
+            elif payload[0] != STREAM_VERSIONS[UPLINK_STATUS_LENGTH]:
+                rejected[Rejection.VERSION] += 1
+            elif crc8(payload[:-1]) != payload[-1]:
+                rejected[Rejection.CRC] += 1
             else:
-                rejected[Rejection.LENGTH] += 1  # no other length can decode to a state packet
+                stats.uplink_statuses += 1
 
         for encoded_length, length in encoded.items():
             rows = np.flatnonzero(candidate & (lengths == encoded_length))

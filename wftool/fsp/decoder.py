@@ -25,20 +25,23 @@ from wftool.fsp.estimators import make_estimator
 from wftool.fsp.framing import (
     COMMAND_VERSIONS,
     STATE_E2_VERSIONS,
-    STATE_VERSIONS,
+    STREAM_VERSIONS,
     Deframer,
     Rejection,
 )
 from wftool.fsp.packets import (
     DROPS_MODULUS,
     SEQ_MODULUS,
+    STATE_LENGTH,
     TIME_REPLY_LENGTH,
     CommandPacket,
     StatePacket,
     TimeReply,
+    UplinkStatus,
     parse_command,
     parse_state,
     parse_time_reply,
+    parse_uplink_status,
 )
 from wftool.fsp.twoway import RoundTripMatcher, RoundTripRejection
 
@@ -126,6 +129,8 @@ class StreamStats:
     resets: int = 0
     time_replies: int = 0
     """E2 time replies decoded (with E2 on; spec §10)."""
+    uplink_statuses: int = 0
+    """E3 uplink statuses decoded (spec §12)."""
     outliers: int = 0
     """Packets that fit neither the stream before nor after them (`StatePacket.outlier`)."""
 
@@ -154,8 +159,10 @@ class StateDecoder:
         self.round_trips: RoundTripMatcher | None = RoundTripMatcher() if time_replies else None
         """The commands sent and the replies paired with them (E2 only): a sender records
         each command here (`FspReader` does)."""
-        self._deframer = Deframer(STATE_E2_VERSIONS if time_replies else STATE_VERSIONS)
+        self._deframer = Deframer(STATE_E2_VERSIONS if time_replies else STREAM_VERSIONS)
         self.stats = StreamStats(rejected=self._deframer.rejected)
+        self.uplink_status: UplinkStatus | None = None
+        """The FC's newest uplink status (E3, spec §12); None before the first."""
         self._last: StatePacket | None = None
         self._suspect: StatePacket | None = None
         """The latest packet, if it did not follow `_last`: an outlier unless the next
@@ -194,14 +201,17 @@ class StateDecoder:
         """Packets completed by `data`; `arrival_time` (OBC clock, s) enables clock alignment."""
         self.stats.bytes += len(data)
         payloads = self._deframer.feed(data)
-        if self.round_trips is None:
+        if min(map(len, payloads), default=STATE_LENGTH) >= STATE_LENGTH:  # state packets only
             return self._account(map(parse_state, payloads), arrival_time)
         packets: list[StatePacket] = []
         start = 0
         for index, payload in enumerate(payloads):
-            if len(payload) == TIME_REPLY_LENGTH:  # the stream's order matters: packets first
+            if len(payload) < STATE_LENGTH:  # the stream's order matters: packets first
                 packets += self._account(map(parse_state, payloads[start:index]), arrival_time)
-                self._time_reply(parse_time_reply(payload), arrival_time)
+                if len(payload) == TIME_REPLY_LENGTH:
+                    self._time_reply(parse_time_reply(payload), arrival_time)
+                else:
+                    self._uplink_status(parse_uplink_status(payload), arrival_time)
                 start = index + 1
         return packets + self._account(map(parse_state, payloads[start:]), arrival_time)
 
@@ -309,6 +319,24 @@ class StateDecoder:
         if packet.arrival_time is not None:
             first.obc_time = self.clock.to_obc(first.time_us)
             second.obc_time = self.clock.to_obc(second.time_us)
+
+    def _uplink_status(self, status: UplinkStatus, arrival_time: float | None) -> None:
+        """Keep the newest status, its FC times unwrapped against the latest state packet's
+        when its send time lies within `REPLY_PLACE_US` of it (as a time reply's)."""
+        self.stats.uplink_statuses += 1
+        status.arrival_time = arrival_time
+        last = self._last
+        if last is not None and last.time_us is not None:
+            ahead = (status.tx_time_us - last.tx_time_us) % U32
+            if ahead >= _HALF_U32:
+                ahead -= U32
+            if abs(ahead) <= REPLY_PLACE_US:
+                status.sent_us = sent_us = last.time_us + ahead
+                if status.timeouts:  # before the status, within 2^31 µs
+                    status.timed_out_at_us = (
+                        sent_us - (status.tx_time_us - status.timed_out_us) % U32
+                    )
+        self.uplink_status = status
 
     def _time_reply(self, reply: TimeReply, arrival_time: float | None) -> None:
         """Place a reply's FC times against the latest state packet's, then pair it."""

@@ -1,5 +1,5 @@
-"""Encoding FSP packets for the wire: the OBC's command uplink; state streams and time
-replies for tests.
+"""Encoding FSP packets for the wire: the OBC's command uplink; state streams, time replies
+and uplink statuses for tests.
 
 `CommandSender` is what an OBC program uses: it numbers commands (E1 `seq`) and stamps
 them with the OBC clock, so the FC side and logs can tell loss and latency.
@@ -20,9 +20,11 @@ from wftool.fsp.packets import (
     RcValues,
     StatePacket,
     TimeReply,
+    UplinkStatus,
     pack_command,
     pack_state,
     pack_time_reply,
+    pack_uplink_status,
     rc_values,
 )
 from wftool.fsp.twoway import RoundTripMatcher
@@ -38,6 +40,11 @@ def encode_state(packet: StatePacket) -> bytes:
 def encode_time_reply(reply: TimeReply) -> bytes:
     """Wire bytes of a time reply (COBS + delimiter): what an FC with E2 sends, for tests."""
     return encode_frame(pack_time_reply(reply))
+
+
+def encode_uplink_status(status: UplinkStatus) -> bytes:
+    """Wire bytes of an uplink status (COBS + delimiter): what an FC with E3 sends, for tests."""
+    return encode_frame(pack_uplink_status(status))
 
 
 def encode_command(packet: CommandPacket) -> bytes:

@@ -17,6 +17,7 @@ from wftool.fsp.packets import (
     STATE_LENGTH,
     STATE_TUNNEL_LENGTH,
     TIME_REPLY_LENGTH,
+    UPLINK_STATUS_LENGTH,
     VERSION_BASE,
     VERSION_TUNNEL,
 )
@@ -39,8 +40,11 @@ STATE_VERSIONS: Mapping[int, int] = {
     STATE_TUNNEL_LENGTH: VERSION_TUNNEL,
 }
 """Payload length → the version byte a state packet of that length must carry."""
-STATE_E2_VERSIONS: Mapping[int, int] = {**STATE_VERSIONS, TIME_REPLY_LENGTH: VERSION_BASE}
-"""The FC → OBC stream with E2 time replies (spec §10), told apart by their length."""
+STREAM_VERSIONS: Mapping[int, int] = {**STATE_VERSIONS, UPLINK_STATUS_LENGTH: VERSION_BASE}
+"""The FC → OBC stream: state packets and E3 uplink statuses (spec §12), told apart by
+their length."""
+STATE_E2_VERSIONS: Mapping[int, int] = {**STREAM_VERSIONS, TIME_REPLY_LENGTH: VERSION_BASE}
+"""The FC → OBC stream with E2 time replies (spec §10) too."""
 COMMAND_VERSIONS: Mapping[int, int] = {COMMAND_LENGTH: VERSION_BASE}
 
 

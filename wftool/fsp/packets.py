@@ -1,4 +1,4 @@
-"""FSP v5 packet models and their byte layouts (spec §3–§6, §10), without the COBS framing.
+"""FSP v5 packet models and their byte layouts (spec §3–§6, §10, §12), without the COBS framing.
 
 The models hold raw wire values, so decode → encode is exact; properties convert to physical
 units. Times the decoder derives (unwrapped, OBC-corrected) are left out of equality: two
@@ -7,6 +7,7 @@ packets are equal when their wire content is.
 
 from __future__ import annotations
 
+import enum
 import math
 import struct
 from collections.abc import Sequence
@@ -23,6 +24,7 @@ STATE_LENGTH = 116
 STATE_TUNNEL_LENGTH = 180
 COMMAND_LENGTH = 24
 TIME_REPLY_LENGTH = 20
+UPLINK_STATUS_LENGTH = 36
 MAVLINK_FIELD_LENGTH = 64
 
 E1_FLAG = 1 << 23
@@ -67,10 +69,12 @@ _TRAILER = struct.Struct("<" + _TRAILER_FORMAT)
 _new = object.__new__
 _COMMAND = struct.Struct("<BBHI6h3xB")
 _TIME_REPLY = struct.Struct("<BBHIII3xB")
+_UPLINK_STATUS = struct.Struct("<BBHIIIIIHBBI3xB")
 assert _STATE_BASE.size == STATE_LENGTH
 assert _STATE_TUNNEL.size == STATE_TUNNEL_LENGTH
 assert _COMMAND.size == COMMAND_LENGTH
 assert _TIME_REPLY.size == TIME_REPLY_LENGTH
+assert _UPLINK_STATUS.size == UPLINK_STATUS_LENGTH
 
 Q15 = 32768.0
 RC_CHANNELS = ("roll", "pitch", "yaw", "throttle", "aux3", "aux4")
@@ -288,6 +292,74 @@ class TimeReply:
         return VERSION
 
 
+class UplinkFlag(enum.IntFlag):
+    """The flags byte of an uplink status (spec §12)."""
+
+    LIVE = 1 << 0
+    """A fresh command is in effect (less than the command timeout old)."""
+    OVERRIDE = 1 << 1
+    """The MSP OVERRIDE mode is on: the OBC's fresh commands steer the overridden channels."""
+    OBC_RECEIVER = 1 << 2
+    """The MSP receiver is the FC's receiver: the OBC flies alone."""
+    RX_LOSS = 1 << 3
+    """The FC's receiver has lost its signal (RXLOSS)."""
+    ARMED = 1 << 4
+
+
+FAILSAFE_PHASES = (
+    "IDLE", "RX_LOSS_DETECTED", "LANDING", "LANDED", "RX_LOSS_MONITORING", "RX_LOSS_RECOVERED",
+    "GPS_RESCUE",
+)  # fmt: skip
+"""Betaflight's `failsafePhase_e` (flight/failsafe.h), by value."""
+
+
+@dataclass(slots=True)
+class UplinkStatus:
+    """FC → OBC uplink status (spec §12, E3): what the FC made of the commands so far.
+
+    Equality is the wire content; the decoder adds the arrival time.
+    """
+
+    command_seq: int
+    """`seq` of the newest fresh command (24 bits; 0 before the first)."""
+    tx_time_us: int
+    """FC `micros()` (u32) when the status was written."""
+    accepted: int
+    """Fresh commands (u32, wraps)."""
+    stale: int
+    """Valid commands that were not fresh: repeats, old ones, the first of a new sequence."""
+    timeouts: int
+    """Times the command in effect timed out."""
+    rejected: int
+    """Chunks that failed COBS, length, version or CRC."""
+    timeout_ms: int
+    """The FC's command timeout, `fsp_cmd_timeout_ms`."""
+    flags: int
+    """`UplinkFlag` bits."""
+    failsafe_phase: int
+    """Betaflight's failsafe phase (`FAILSAFE_PHASES`)."""
+    timed_out_us: int = 0
+    """FC `micros()` (u32) when a command in effect last timed out; 0 before the first."""
+    sent_us: int | None = field(default=None, compare=False)
+    """`tx_time_us` unwrapped into the state stream's 64-bit FC time (set by the decoder)."""
+    timed_out_at_us: int | None = field(default=None, compare=False)
+    """`timed_out_us` unwrapped likewise, when there was a timeout (set by the decoder)."""
+    arrival_time: float | None = field(default=None, compare=False)
+    """OBC clock (s) when the bytes carrying the status were read."""
+
+    @property
+    def version(self) -> int:
+        return VERSION
+
+    def has(self, flag: UplinkFlag) -> bool:
+        return bool(self.flags & flag)
+
+    @property
+    def failsafe_phase_name(self) -> str:
+        phase = self.failsafe_phase
+        return FAILSAFE_PHASES[phase] if phase < len(FAILSAFE_PHASES) else f"phase {phase}"
+
+
 def parse_state(payload: bytes) -> StatePacket:
     """A validated 116- or 180-byte state payload (see `framing.Deframer`) as a packet.
 
@@ -361,6 +433,26 @@ def pack_time_reply(reply: TimeReply) -> bytes:
         )  # fmt: skip
     except struct.error as exc:
         raise ValueError(f"time reply field out of range: {exc}") from None
+    return body[:-1] + bytes([crc8(body[:-1])])
+
+
+def parse_uplink_status(payload: bytes) -> UplinkStatus:
+    """A validated 32-byte uplink status payload as a packet."""
+    _, seq_low, seq_high, *values, _ = _UPLINK_STATUS.unpack(payload)
+    return UplinkStatus(seq_low | seq_high << 8, *values)
+
+
+def pack_uplink_status(status: UplinkStatus) -> bytes:
+    """The unframed payload of `status`, CRC included (what the FC sends; for tests)."""
+    seq = status.command_seq % SEQ_MODULUS
+    try:
+        body = _UPLINK_STATUS.pack(
+            VERSION, seq & 0xFF, seq >> 8, status.tx_time_us, status.accepted, status.stale,
+            status.timeouts, status.rejected, status.timeout_ms, status.flags,
+            status.failsafe_phase, status.timed_out_us, 0,
+        )  # fmt: skip
+    except struct.error as exc:
+        raise ValueError(f"uplink status field out of range: {exc}") from None
     return body[:-1] + bytes([crc8(body[:-1])])
 
 

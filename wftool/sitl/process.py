@@ -12,6 +12,7 @@ import signal
 import socket
 import subprocess
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,6 +25,8 @@ SIM_PORT_OFFSET = 3240
 """The simulator's UDP port base, relative to the TCP port base (5760 -> upstream's 9000)."""
 SIM_STATE_PORT = 3
 """SITL's simulator state input is UDP sim base + 3 (9003 by default)."""
+SIM_RC_PORT = 4
+"""SITL's RC input (the simulated radio, `feature RX_UDP`) is UDP sim base + 4."""
 UART_COUNT = 8
 MAX_PORT_BASE = 65535 - SIM_PORT_OFFSET - UART_COUNT
 """The highest port base whose every port (TCP per UART, the simulator's UDP) exists."""
@@ -89,7 +92,9 @@ def ports_in_use(port_base: int) -> list[str]:
     """Which of a virtual FC's ports (TCP per UART, UDP inputs) another program holds."""
     taken = []
     tcp = [(socket.SOCK_STREAM, port_base + uart) for uart in range(1, UART_COUNT + 1)]
-    udp = [(socket.SOCK_DGRAM, port_base + SIM_PORT_OFFSET + n) for n in (3, 4)]
+    udp = [
+        (socket.SOCK_DGRAM, port_base + SIM_PORT_OFFSET + n) for n in (SIM_STATE_PORT, SIM_RC_PORT)
+    ]
     for kind, port in tcp + udp:
         with socket.socket(socket.AF_INET, kind) as probe:
             if kind == socket.SOCK_STREAM:  # as SITL listens: a closed connection's TIME_WAIT
@@ -164,6 +169,11 @@ class VirtualFC:
     def sim_state_port(self) -> int:
         """The UDP port of SITL's simulator state input (motion)."""
         return self.port_base + SIM_PORT_OFFSET + SIM_STATE_PORT
+
+    @property
+    def sim_rc_port(self) -> int:
+        """The UDP port of SITL's RC input (the simulated radio)."""
+        return self.port_base + SIM_PORT_OFFSET + SIM_RC_PORT
 
     @property
     def running(self) -> bool:
@@ -258,6 +268,13 @@ class VirtualFC:
                     return ""
                 time.sleep(0.05)
         return f"SITL's PID loop did not start within {LOOP_TIMEOUT_S:.0f} s"
+
+    def close_client(self, uart: int, close: Callable[[], object], timeout: float = 2.0) -> bool:
+        """Run `close` (which closes this program's connection to UARTn) and wait until SITL
+        has released it (`[CLS]UARTn`): a connection made before that is dropped at once."""
+        offset = self.log_path.stat().st_size
+        close()
+        return self._await_log(f"[CLS]UART{uart}".encode(), timeout, offset) is not None
 
     def _await_log(self, marker: bytes, timeout: float, offset: int = 0) -> bytes | None:
         """The log from `offset` (default: this start) once it holds `marker`, else None."""

@@ -2,9 +2,14 @@
 
 `VirtualFcSession` is what `wftool sitl` and the end-to-end tests start: a `VirtualFC`
 process in a scratch directory (emulating a `VirtualBoard`), FSP put on UART2 through the CLI
-with the same safe workflow a lab uses on hardware (and, on request, the MSP port's baud
-rate, which counts once its UARTs are paced), and — on request — synthetic IMU motion fed
-through SITL's simulator input (UDP 9003), so the stream carries moving values.
+with the same safe workflow a lab uses on hardware (`configure fsp`; and, on request, the MSP
+port's baud rate, which counts once its UARTs are paced), and — on request — synthetic IMU
+motion fed through SITL's simulator input (UDP 9003), so the stream carries moving values.
+
+Who flies it is `configure fsp`'s choice: the OBC alone (the MSP receiver, the default
+here), or a safety pilot (`pilot=True`): the simulated radio (`radio.SimulatedRadio` on
+SITL's RC input, `feature RX_UDP`) is the receiver, ARM on its AUX1, and the OBC overrides
+the sticks while its AUX2 switch is on.
 """
 
 from __future__ import annotations
@@ -19,9 +24,18 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from wftool.fc.cli_session import CliSession
-from wftool.fc.fsp_setup import SerialPortConfig, fsp_planner
-from wftool.fc.msp import MspClient
-from wftool.fc.params import Command, Plan, Planner, apply_plan
+from wftool.fc.fsp_setup import (
+    CMD_TIMEOUT_MS_DEFAULT,
+    MODE_ARM,
+    AuxRange,
+    ObcOnly,
+    SafetyPilot,
+    SerialPortConfig,
+    aux_ranges,
+    fsp_planner,
+)
+from wftool.fc.msp import FEATURE_RX_UDP, MspClient
+from wftool.fc.params import Command, Plan, Planner, apply_plan, set_command
 from wftool.fsp import DEFAULT_BAUDRATE
 from wftool.fsp.schedule import DEFAULT_RATE_HZ, frame_rate_hz
 from wftool.sitl.process import (
@@ -31,11 +45,19 @@ from wftool.sitl.process import (
     VirtualBoard,
     VirtualFC,
 )
+from wftool.sitl.radio import SimulatedRadio
 
 FSP_UART = 2
 MSP_UART = 1
 """The SITL's MSP and CLI port (its only serial function by default)."""
 GRAVITY = 9.80665
+PILOT_ARM = 1
+"""The simulated radio's ARM switch: AUX1."""
+PILOT_OVERRIDE = 2
+"""The simulated radio's override switch: AUX2."""
+OBC_ARM = 3
+"""Where the OBC flying alone arms: AUX3, which FSP carries (`arm_switch=OBC_ARM`)."""
+SWITCH_ON_US = (1700, 2100)
 
 
 @dataclass(frozen=True)
@@ -133,7 +155,8 @@ def with_msp_baud(planner: Planner, baud: int) -> Planner:
 
     def plan(session: CliSession) -> Plan:
         planned = planner(session)
-        for config in map(SerialPortConfig.parse, session.run("serial").splitlines()):
+        lines = filter(str.strip, session.run("serial").splitlines())
+        for config in map(SerialPortConfig.parse, lines):
             if config.port == f"UART{MSP_UART}" and config.msp_baud != baud:
                 planned.commands.append(Command(replace(config, msp_baud=baud).command()))
         return planned
@@ -157,11 +180,18 @@ class VirtualFcSession:
         serial_update_rate_hz: int | None = None,
         board: VirtualBoard = SITL_BOARD,
         msp_baud: int | None = None,
+        pilot: bool = False,
+        cmd_timeout_ms: int = CMD_TIMEOUT_MS_DEFAULT,
+        failsafe_procedure: str = "drop",
+        arm_switch: int | None = None,
     ) -> None:
         """`time_reply`: the FC answers each command with a time reply (spec §10);
         `port_base=None`: any free ports (see `VirtualFC`); `serial_update_rate_hz` None:
         the highest the FC allows (as `configure fsp`); `msp_baud` None: the MSP port's as
-        it is (115200)."""
+        it is (115200). `pilot`: a safety pilot's simulated radio is the receiver (`radio`),
+        else the OBC flies alone with `failsafe_procedure`. `arm_switch`: ARM on that AUX
+        channel (default: the radio's AUX1 with a pilot; none without, where the OBC arms
+        only through an ARM range on AUX3/AUX4)."""
         self.fc = VirtualFC(binary, workdir, port_base=port_base, board=board)
         self.msp_baud = msp_baud
         self.workdir = workdir
@@ -169,8 +199,15 @@ class VirtualFcSession:
         self.rate_hz = rate_hz
         self.time_reply = time_reply
         self.serial_update_rate_hz = serial_update_rate_hz
+        self.pilot = pilot
+        self.cmd_timeout_ms = cmd_timeout_ms
+        self.failsafe_procedure = failsafe_procedure
+        self.arm_switch = arm_switch if arm_switch is not None or not pilot else PILOT_ARM
         self._motion = motion
         self._feeder: MotionFeeder | None = None
+        self.radio: SimulatedRadio | None = None
+        """The safety pilot's radio (with `pilot`): sticks centred, throttle low, switches
+        off until told otherwise."""
 
     @property
     def expected_rate_hz(self) -> float:
@@ -186,20 +223,37 @@ class VirtualFcSession:
     def fsp_url(self) -> str:
         return self.fc.uart_url(FSP_UART)
 
+    def planner(self) -> Planner:
+        """`configure fsp` as this virtual FC is flown, plus what a simulator without an
+        airframe needs (`_virtual_airframe`)."""
+        control: SafetyPilot | ObcOnly = ObcOnly(self.failsafe_procedure)
+        if self.pilot:
+            control = SafetyPilot(PILOT_OVERRIDE, SWITCH_ON_US)
+        planner = fsp_planner(
+            FSP_UART,
+            self._baud,
+            self.rate_hz,
+            self.time_reply,
+            self.serial_update_rate_hz,
+            control=control,
+            cmd_timeout_ms=self.cmd_timeout_ms,
+            radio_feature=FEATURE_RX_UDP if self.pilot else None,
+        )
+        if self.msp_baud is not None:
+            planner = with_msp_baud(planner, self.msp_baud)
+        return _virtual_airframe(planner, self.arm_switch)
+
     def start(self) -> VirtualFcSession:
         self.fc.start()
         try:
-            planner = fsp_planner(
-                FSP_UART, self._baud, self.rate_hz, self.time_reply, self.serial_update_rate_hz
-            )
-            if self.msp_baud is not None:
-                planner = with_msp_baud(planner, self.msp_baud)
-            apply_plan(self.fc, planner, self.workdir / "backups")
+            if self.pilot:
+                self.radio = SimulatedRadio(self.fc.sim_rc_port).start()
+            apply_plan(self.fc, self.planner(), self.workdir / "backups")
             if self._motion is not None:  # the ports are known once the FC runs
                 self._feeder = MotionFeeder(self._motion, self.fc.sim_state_port)
                 self._feeder.start()
         except BaseException:
-            self.fc.stop()
+            self.stop()
             raise
         return self
 
@@ -254,6 +308,9 @@ class VirtualFcSession:
         if self._feeder is not None:
             self._feeder.stop()
             self._feeder = None
+        if self.radio is not None:
+            self.radio.stop()
+            self.radio = None
         self.fc.stop()
 
     def __enter__(self) -> VirtualFcSession:
@@ -261,3 +318,27 @@ class VirtualFcSession:
 
     def __exit__(self, *exc_info: object) -> None:
         self.stop()
+
+
+def _virtual_airframe(planner: Planner, arm_switch: int | None) -> Planner:
+    """`planner`, then ARM on AUX`arm_switch` (its on position) in a slot of its own, and
+    runaway takeoff prevention off: the virtual FC's gyro is the synthetic motion, which no
+    motor moves, so any stick held off centre while armed winds the PID sum up until
+    Betaflight disarms ("runaway takeoff") within ~0.1 s."""
+
+    def plan(session: CliSession) -> Plan:
+        base = planner(session)
+        base.commands.append(set_command("runaway_takeoff_prevention", "OFF"))
+        if arm_switch is None:
+            return base
+        ranges = aux_ranges(session)
+        taken = {int(command.text.split()[1]) for command in base.commands if command.verb == "aux"}
+        arms = [r.slot for r in ranges if r.usable and r.mode == MODE_ARM]
+        free = [r.slot for r in ranges if not r.usable and r.slot not in taken]
+        slot = (arms or free)[0]
+        start, end = SWITCH_ON_US
+        arm = AuxRange(slot, MODE_ARM, arm_switch - 1, start, end)
+        base.commands.append(Command(arm.command()))
+        return base
+
+    return plan
