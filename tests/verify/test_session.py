@@ -50,9 +50,17 @@ def test_run_judges_what_it_saw_and_the_recording_replays_it(fc_stream, tmp_path
     recording = tmp_path / "run.mcap"
     # Sent faster than real time: the rate check is not what this test is about.
     fast = criteria_for(min_rate_hz=1.0)
-    session = VerifySession(url, duration_s=1.5, criteria=fast, record_path=recording)
+    session = VerifySession(url, duration_s=30.0, criteria=fast, record_path=recording)
     refreshed = []
-    result = session.run(on_refresh=refreshed.append)
+    frames = []
+    done = threading.Event()  # all sent was read: however loaded the machine, the run ends
+
+    def on_packets(packets, _t):
+        frames.extend(frame for packet in packets for frame in packet.frames)
+        if len(frames) >= 2 * len(sent):
+            done.set()
+
+    result = session.run(on_refresh=refreshed.append, stop=done, on_packets=on_packets)
 
     assert result.summary.frames == 2 * len(sent)
     assert (result.summary.lost_packets, result.summary.lost_frames) == (1, 2)
