@@ -36,11 +36,19 @@ def exchange(session: VirtualFcSession, commands: int, period_s: float = 0.02) -
     return decoder
 
 
+def assert_clean(decoder: StateDecoder) -> None:
+    """Nothing rejected but the one chunk a connection may cut by joining the stream
+    mid-packet (the SITL streams whether or not a client is connected, as a UART does)."""
+    joined = sum(decoder.joined.values())
+    assert joined <= 1 and decoder.stats.errors == joined
+
+
 def test_time_reply_is_off_by_default(sitl_binary: Path, tmp_path: Path) -> None:
     with VirtualFcSession(sitl_binary, tmp_path, port_base=None) as session:
         decoder = exchange(session, 50)
     assert decoder.stats.packets > 400
-    assert decoder.stats.time_replies == 0 and decoder.stats.errors == 0
+    assert decoder.stats.time_replies == 0
+    assert_clean(decoder)
 
 
 def test_time_reply_answers_every_fresh_command_once(sitl_binary: Path, tmp_path: Path) -> None:
@@ -51,7 +59,8 @@ def test_time_reply_answers_every_fresh_command_once(sitl_binary: Path, tmp_path
         decoder = exchange(session, 100)
     matcher = decoder.round_trips
     assert matcher is not None
-    assert decoder.stats.errors == 0 and decoder.stats.lost_frames == 0
+    assert_clean(decoder)
+    assert decoder.stats.lost_frames == 0
     assert matcher.matched == decoder.stats.time_replies == 99
     assert not any(matcher.rejected.values())
     status = decoder.uplink_status
