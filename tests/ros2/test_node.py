@@ -137,7 +137,7 @@ def test_commands_pass_only_fresh_in_range_and_newer(bridge: Ros2Bridge):
     good = [[1100 + 100 * i, 1500, 1500, 1000, 1000, 1000] for i in range(5)]
     plan = [
         {"rc": good[0], "after_s": 0.05},
-        {"rc": [2100, 1500, 1500, 1000, 1000, 1000], "after_s": 0.05},  # out of range
+        {"rc": [2251, 1500, 1500, 1000, 1000, 1000], "after_s": 0.05},  # out of range
         {"rc": good[1], "after_s": 0.05},
         {"rc": good[1], "same_stamp": True, "after_s": 0.005},  # a stuck sender's repeat
         {"rc": good[2], "age_ns": 200 * MS, "after_s": 0.05},  # stale

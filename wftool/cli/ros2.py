@@ -13,7 +13,8 @@ import click
 from wftool.cli.verify import _duration, _options, err
 from wftool.errors import UsageError
 from wftool.fsp import DEFAULT_BAUDRATE, ESTIMATORS
-from wftool.ros2.commands import DEFAULT_MAX_AGE_NS, RC_MAX, RC_MIN
+from wftool.fsp.packets import RC_PULSE_US
+from wftool.ros2.commands import DEFAULT_MAX_AGE_NS
 from wftool.ros2.node import COMMAND_TOPIC, DEFAULT_DEPTH, Ros2Bridge, Ros2Options
 from wftool.verify.monitor import StreamSummary
 from wftool.verify.session import VerifySession
@@ -83,7 +84,7 @@ def describe(bridge: Ros2Bridge) -> list[str]:
         lines.append(
             f"commands: [bold]taken[/] on {command}: sent once each, if at most "
             f"{options.command_max_age_ns / 1e6:g} ms old and every value in "
-            f"{RC_MIN}-{RC_MAX}"
+            f"{RC_PULSE_US[0]}-{RC_PULSE_US[1]} µs"
         )
     return lines
 
