@@ -27,8 +27,8 @@ from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_typestore
 
 from wftool.errors import RecordingError, UsageError
-from wftool.fsp import SensorFrame, StatePacket
-from wftool.fsp.encoder import encode_state
+from wftool.fsp import SensorFrame, StatePacket, UplinkFlag, UplinkStatus
+from wftool.fsp.encoder import encode_state, encode_uplink_status
 from wftool.recording import rosbag
 from wftool.recording.events import Event, StreamHealth
 from wftool.recording.reader import read_recording
@@ -41,10 +41,32 @@ from wftool.verify.session import replay_recording
 PERIOD_US = 953
 PACKETS_PER_READ = 3
 READ_S = PACKETS_PER_READ * 2 * PERIOD_US * 1e-6
+STATUS_EVERY = 50
+"""Packets between the uplink statuses of `flight(statuses=True)`: about 100 ms, as the FC's."""
+LIVE = UplinkFlag.LIVE | UplinkFlag.OVERRIDE | UplinkFlag.ARMED
 
 
-def flight(packets: int, seed: int = 1) -> list[bytes]:
-    """Reads of a random but plausible E1 stream: RC held for a while, some blank frames."""
+def fc_status(seq: int, tx_time_us: int) -> UplinkStatus:
+    """What a piloted FC reports after state packet `seq` of `flight`: commands flying it
+    under override; from packet 1000 on, timed out (the pilot's sticks again); from 2000
+    on, the pilot's radio lost too (RX loss, failsafe)."""
+    flags, phase, timeouts, timed_out_us = LIVE, 0, 0, 0
+    if seq >= 1000:
+        flags, timeouts = UplinkFlag.OVERRIDE | UplinkFlag.ARMED, 1
+        timed_out_us = (tx_time_us - (seq - 1000) * 2 * PERIOD_US - 700) % 2**32
+    if seq >= 2000:
+        flags, phase = flags | UplinkFlag.RX_LOSS, 1
+    accepted = min(seq, 1000) // 2
+    return UplinkStatus(
+        accepted % 2**24, tx_time_us, accepted, seq // 400, timeouts, seq // 700, 50, flags,
+        phase, timed_out_us,
+    )  # fmt: skip
+
+
+def flight(packets: int, seed: int = 1, *, statuses: bool = False) -> list[bytes]:
+    """Reads of a random but plausible E1 stream: RC held for a while, some blank frames;
+    with `statuses`, an FC's uplink status (`fc_status`) after every `STATUS_EVERY` packets
+    and where its flags change."""
     rng = random.Random(seed)
     rc = (1500, 1500, 1500, 1000, 1000, 1000)
     reads, chunk = [], b""
@@ -72,6 +94,8 @@ def flight(packets: int, seed: int = 1) -> list[bytes]:
             t_us += PERIOD_US
         packet = StatePacket((t_us + 90) % 2**32, tuple(frames), seq, True, seq // 500)
         chunk += encode_state(packet)
+        if statuses and (seq % STATUS_EVERY == STATUS_EVERY // 2 or seq in (1000, 2000)):
+            chunk += encode_uplink_status(fc_status(seq, (t_us + 130) % 2**32))
         if seq % PACKETS_PER_READ == PACKETS_PER_READ - 1:
             reads.append(chunk)
             chunk = b""
