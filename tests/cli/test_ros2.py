@@ -5,12 +5,16 @@ from __future__ import annotations
 
 import socket
 import sys
+from types import SimpleNamespace
 
 import pytest
 
 from tests.conftest import run_cli
 from tests.ros2 import peers
+from tests.verify.test_monitor import feed_fc_uplink
+from wftool.cli.ros2 import status_line
 from wftool.errors import EXIT_USAGE
+from wftool.verify.monitor import StreamMonitor
 
 
 def test_without_the_extra_it_names_it(capsys, monkeypatch):
@@ -71,3 +75,16 @@ def test_sitl_ros2_publishes_the_virtual_fcs_stream_while_it_verifies(
     assert code == 0, err
     assert f"publishing {namespace}/fsp/attitude" in " ".join(err.split())
     assert len(peers.received(out)) > 1000  # of 5 s at 1 kHz, less discovery and matching
+
+
+def test_the_status_line_says_what_the_fc_made_of_the_commands():
+    monitor = StreamMonitor("socket://sim:5762")
+    feed_fc_uplink(monitor, 2100)  # timed out, then the pilot's radio lost
+    node = SimpleNamespace(gate=None)  # a node that takes no commands: what it did is not said
+    line = status_line(monitor.summary(), node)
+    assert line.startswith("4200 frames published")
+    assert line.endswith(
+        "; the FC: 500 accepted, 5 stale, 1 timeouts; override, RX loss, armed; "
+        "failsafe RX_LOSS_DETECTED"
+    )
+    assert "the FC" not in status_line(StreamMonitor("x").summary(), node)

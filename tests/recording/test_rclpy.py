@@ -13,11 +13,18 @@ import pytest
 from mcap.reader import make_reader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-from tests.recording.test_rosbag import assert_imu_matches, decoded_frames, flight, read_bag, record
+from tests.recording.test_rosbag import (
+    STATUS_EVERY,
+    assert_imu_matches,
+    decoded_frames,
+    flight,
+    read_bag,
+    record,
+)
 from tests.ros2 import peers
-from wftool.fsp import SensorFrame
+from wftool.fsp import SensorFrame, UplinkFlag, UplinkStatus
 from wftool.recording import ros2msg as ros2
-from wftool.recording.events import Event
+from wftool.recording.events import Event, UplinkReport
 from wftool.recording.recorder import Recorder
 from wftool.recording.ros2msg import WFTOOL_MSGS, FrameEncoder
 
@@ -29,9 +36,10 @@ OUR_TYPES = sorted(p.stem for p in (WFTOOL_MSGS / "msg").glob("*.msg"))
 
 @pytest.fixture(scope="module")
 def bag(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[bytes]]:
-    """A recorded synthetic flight (the real decoder and recorder), with its reads."""
+    """A recorded synthetic flight (the real decoder and recorder) of an FC that reports on
+    its uplink, with its reads."""
     path = tmp_path_factory.mktemp("rclpy") / "flight"
-    reads = flight(1500)
+    reads = flight(1500, statuses=True)
     with Recorder(path, None, {"port": "socket://sim:5762"}) as recorder:
         record(recorder, reads)
     return path, reads
@@ -82,7 +90,7 @@ def test_recorded_schemas_are_the_package_files(bag):
             definition = schema.data.decode().split(RULE)[0]
             assert definition == (WFTOOL_MSGS / "msg" / f"{name}.msg").read_text(), name
             seen.add(name)
-    assert seen == {"RcChannels", "MotorRpm", "StreamHealth", "StreamEvents"}
+    assert seen == {"RcChannels", "MotorRpm", "StreamHealth", "UplinkStatus", "StreamEvents"}
 
 
 def test_every_message_decodes_as_rosbags_decodes_it(bag):
@@ -91,6 +99,7 @@ def test_every_message_decodes_as_rosbags_decodes_it(bag):
     by_rclpy = rclpy_messages(mcap)
     by_rosbags = read_bag(path)
     assert by_rclpy.keys() == by_rosbags.keys()
+    assert len(by_rclpy["/fsp/uplink_status"]) >= 1500 // STATUS_EVERY // 2  # every other one
     for topic, messages in by_rclpy.items():
         assert len(messages) == len(by_rosbags[topic]) > 0, topic
         for (_, ours), (_, theirs) in zip(messages, by_rosbags[topic]):
@@ -126,6 +135,14 @@ STAMP_NS = 1_700_000_123_456_789_012
          {"channels": [1500, 1501, 1000, 2000, 988]}),
         (ros2.BATTERY_STATE, lambda: ros2.battery_message(STAMP_NS, 15.87, 2.5),
          {"voltage": pytest.approx(15.87), "current": 2.5, "present": True}),
+        (ros2.UPLINK_STATUS, lambda: FrameEncoder(STAMP_NS - 10**9).uplink_status(UplinkReport(
+            UplinkStatus(77, 2**32 - 1, 1000, 3, 2, 1, 50,
+                         UplinkFlag.OVERRIDE | UplinkFlag.RX_LOSS | UplinkFlag.ARMED, 1, 999),
+            1.0, 0.5)),
+         {"command_seq": 77, "accepted": 1000, "stale": 3, "rejected": 1, "timeouts": 2,
+          "timeout_ms": 50, "live": False, "override": True, "obc_receiver": False,
+          "rx_loss": True, "armed": True, "failsafe_phase": 1, "tx_time_us": 2**32 - 1,
+          "timed_out_us": 999, "timed_out": {"sec": 1_700_000_122, "nanosec": 956_789_012}}),
     ],
     ids=lambda value: value.name.split("/")[-1] if isinstance(value, ros2.MessageType) else "",
 )  # fmt: skip

@@ -10,11 +10,17 @@ import pytest
 from mcap.reader import make_reader
 
 from tests.fsp.test_twoway import RC
-from tests.recording.data.make_recordings import RECORDINGS, events, run
+from tests.recording.data.make_recordings import (
+    RECORDINGS,
+    UPLINK_RECORDING,
+    events,
+    run,
+    uplink_events,
+)
 from tests.verify.test_monitor import feed_steady, feed_two_way
 from wftool.errors import UsageError
 from wftool.recording.events import Event, run_metadata
-from wftool.recording.reader import RecordingReader, recording_columns
+from wftool.recording.reader import RecordingReader, recording_columns, recording_topics
 from wftool.recording.recorder import FRAME_TOPIC, Recorder
 from wftool.verify.monitor import StreamMonitor
 from wftool.verify.session import replay_recording
@@ -131,3 +137,15 @@ def test_recordings_in_an_earlier_layout_still_read(name: str):
     sizes, times = [len(e.data) for e in reads], [e.t for e in reads]
     assert_agree(recording_columns(path), *reference(b"".join(e.data for e in reads), sizes,
                                                       times, connections=[20]))  # fmt: skip
+
+
+def test_a_recording_from_before_the_uplink_status_topic_still_shows_the_fcs_reports():
+    """A file as wftool e1f7f62 wrote it (make_recordings.py): the FC sent uplink statuses,
+    the recording has no topic for them. Replay decodes them from the recorded bytes, as
+    the live run of today would show them."""
+    path = DATA / UPLINK_RECORDING
+    assert "/fsp/uplink_status" not in recording_topics(path)
+    assert list(RecordingReader(path).events()) == uplink_events()
+    replayed = replay_recording(path).summary()
+    assert replayed == run(events=uplink_events).summary()
+    assert replayed.fc_uplink is not None and replayed.fc_uplink.status.accepted == 62

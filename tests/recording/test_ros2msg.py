@@ -15,9 +15,10 @@ from hypothesis import strategies as st
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from tests.fsp.strategies import frames
-from wftool.fsp import SensorFrame
+from wftool.fsp import SensorFrame, UplinkFlag, UplinkStatus
+from wftool.fsp.packets import FAILSAFE_PHASES
 from wftool.recording import ros2msg
-from wftool.recording.events import Event, StreamHealth
+from wftool.recording.events import Event, StreamHealth, UplinkReport
 from wftool.recording.ros2msg import FrameEncoder
 
 ALL_TYPES = (
@@ -27,6 +28,7 @@ ALL_TYPES = (
     ros2msg.MOTOR_RPM,
     ros2msg.ATTITUDE,
     ros2msg.STREAM_HEALTH,
+    ros2msg.UPLINK_STATUS,
     ros2msg.STREAM_EVENT,
     ros2msg.STREAM_EVENTS,
 )
@@ -138,6 +140,7 @@ def test_any_frame_id_moves_what_follows_the_header_by_the_rules(store, frame_id
     frame = _frame()
     encoder = FrameEncoder(0, frame_id)
     health = StreamHealth(1.5, 7, 2, True, False, True, 10, 20, 1, 2, 3, 4, 5, 6)
+    uplink = UplinkReport(UplinkStatus(9, 8, 7, 6, 5, 4, 50, 0b10101, 3, 2), 2.5, 1.25)
     for message, name in (
         (encoder.imu(frame, 5), "sensor_msgs/msg/Imu"),
         (encoder.battery(frame, 5), "sensor_msgs/msg/BatteryState"),
@@ -145,6 +148,7 @@ def test_any_frame_id_moves_what_follows_the_header_by_the_rules(store, frame_id
         (encoder.rpm(frame, 5), "wftool_msgs/msg/MotorRpm"),
         (encoder.attitude(frame, 5), "wftool_msgs/msg/Attitude"),
         (encoder.health(health), "wftool_msgs/msg/StreamHealth"),
+        (encoder.uplink_status(uplink), "wftool_msgs/msg/UplinkStatus"),
     ):
         decoded = store.deserialize_cdr(message, name)
         assert decoded.header.frame_id == frame_id, name
@@ -154,6 +158,32 @@ def test_any_frame_id_moves_what_follows_the_header_by_the_rules(store, frame_id
     assert (rc.roll, rc.pitch, rc.yaw, rc.throttle, rc.aux3, rc.aux4) == frame.rc
     decoded = store.deserialize_cdr(encoder.health(health), "wftool_msgs/msg/StreamHealth")
     assert (decoded.lost_frames, decoded.reconnects) == (1, 6)
+    decoded = store.deserialize_cdr(encoder.uplink_status(uplink), "wftool_msgs/msg/UplinkStatus")
+    assert (decoded.failsafe_phase, decoded.tx_time_us, decoded.timed_out.sec) == (3, 8, 1)
+
+
+@pytest.mark.parametrize("flag", list(UplinkFlag), ids=lambda flag: flag.name)
+def test_uplink_status(store, flag):
+    """Every field where the message names it: each flag alone, counters at their limits,
+    both stamps on the frames' clock (Unix time)."""
+    top = 2**32 - 1
+    status = UplinkStatus(2**24 - 1, top, top, top - 1, top - 2, top - 3, 65535, flag, 6, 12345)
+    report = UplinkReport(status, 12.5, 12.25)
+    encoder = FrameEncoder(1_000_000_000_000)
+    msg = store.deserialize_cdr(encoder.uplink_status(report), "wftool_msgs/msg/UplinkStatus")
+    assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == (1012, 500_000_000)
+    assert (msg.timed_out.sec, msg.timed_out.nanosec) == (1012, 250_000_000)
+    assert (msg.command_seq, msg.tx_time_us, msg.accepted, msg.stale, msg.timeouts, msg.rejected,
+            msg.timeout_ms, msg.failsafe_phase, msg.timed_out_us) == (
+        2**24 - 1, top, top, top - 1, top - 2, top - 3, 65535, 6, 12345,
+    )  # fmt: skip
+    flags = {name: getattr(msg, name) for name in ("live", "override", "obc_receiver",
+                                                    "rx_loss", "armed")}  # fmt: skip
+    assert flags == {name: name == flag.name.lower() for name in flags}
+    phases = [getattr(msg, f"FAILSAFE_{name}") for name in FAILSAFE_PHASES]  # Betaflight's
+    assert phases == list(range(len(FAILSAFE_PHASES)))
+    before = encoder.uplink_status(UplinkReport(status, 12.5, None))  # no timeout yet
+    assert store.deserialize_cdr(before, "wftool_msgs/msg/UplinkStatus").timed_out.sec == 0
 
 
 def test_health(store):

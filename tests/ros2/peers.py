@@ -6,10 +6,11 @@
     python -m tests.ros2.peers node NAMESPACE SECONDS
 
 `subscribe` is the independent receiving side: typed subscriptions (rclpy's own type
-support decodes), reliable QoS, every message written to OUT as a JSON line
+support decodes), reliable QoS (TOPIC=TYPE=latest: the latest only, transient local, as a
+late joiner asks for what was published before it), every message written to OUT as a JSON line
 {"topic", "received_ns", "message"} when it ends (SECONDS after every topic has a
-publisher, or IDLE_S after the last message); it prints "ready" once subscribed, "matched"
-once every topic has a publisher.
+publisher, IDLE_S after the last message, or at SIGTERM); it prints "ready" once subscribed,
+"matched" once every topic has a publisher.
 `publish` plays a recording's messages as `ros2 bag play` would: the stored CDR bytes,
 as they are, on each topic (under NAMESPACE) with its type, once every topic is matched.
 `command` is a ROS 2 program commanding the aircraft: it publishes `wftool_msgs/RcCommand`
@@ -29,6 +30,7 @@ import importlib
 import json
 import math
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -75,9 +77,16 @@ def plain(value: Any) -> Any:
     return value
 
 
-def _reliable():
-    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+def _reliable(latest: bool = False):
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+    if latest:
+        return QoSProfile(
+            depth=1,
+            history=HistoryPolicy.KEEP_LAST,
+            reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL,
+        )
     return QoSProfile(
         depth=QOS_DEPTH, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE
     )
@@ -88,24 +97,28 @@ def _subscribe(out: Path, seconds: float, topics: list[str]) -> None:
     from rclpy.experimental import EventsExecutor
 
     rclpy.init()
+    ending: list[bool] = []  # after rclpy's own handlers: the test says the run is over
+    signal.signal(signal.SIGTERM, lambda *_: ending.append(True))
     node = rclpy.create_node("wftool_test_subscriber")
     received: list[tuple[str, int, Any]] = []
     subscriptions = []
     for spec in topics:
-        topic, type_name = spec.split("=")
+        topic, type_name, *qos = spec.split("=")
 
         def callback(message: Any, topic: str = topic) -> None:
             received.append((topic, time.time_ns(), message))
 
         subscriptions.append(
-            node.create_subscription(message_class(type_name), topic, callback, _reliable())
+            node.create_subscription(
+                message_class(type_name), topic, callback, _reliable(qos == ["latest"])
+            )
         )
     executor = EventsExecutor()
     executor.add_node(node)
     print("ready", flush=True)
     matched = False
     end = time.monotonic() + seconds
-    while time.monotonic() < end:
+    while time.monotonic() < end and not ending:
         executor.spin_once(timeout_sec=0.05)
         if not matched and all(s.get_publisher_count() for s in subscriptions):
             matched = True

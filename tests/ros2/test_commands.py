@@ -7,15 +7,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from wftool.ros2.commands import (
-    FUTURE_TOLERANCE_NS,
-    RC_MAX,
-    RC_MIN,
-    CommandCounts,
-    CommandGate,
-)
+from wftool.fsp import CommandSender
+from wftool.fsp.packets import RC_PULSE_US
+from wftool.ros2.commands import FUTURE_TOLERANCE_NS, CommandCounts, CommandGate
 
 MS = 1_000_000
+RC_MIN, RC_MAX = RC_PULSE_US  # what the library lets a command carry, and nothing else
 RC = (1500, 1500, 1500, 1000, 1000, 1000)
 NOW = 1_700_000_000 * 1_000_000_000
 
@@ -39,6 +36,9 @@ def test_a_fresh_command_is_taken_once():
         (*RC, 1500),
         (0, 0, 0, 0, 0, 0),  # an unset message
         (-32768, 1500, 1500, 1000, 1000, 1000),
+        (1500, 1500, 1500, 1000, 1000, 1000.0),  # not whole microseconds
+        (True, 1500, 1500, 1000, 1000, 1000),
+        "150015001500",
     ],
 )
 def test_out_of_range_is_dropped(rc):
@@ -138,3 +138,16 @@ def test_what_passes_is_fresh_in_range_newer_and_once(steps):
     assert counts.sent == len(taken)
     assert counts.received == len(steps)
     assert counts.received == counts.sent + counts.dropped + gate.pending
+
+
+@settings(max_examples=300)
+@given(st.lists(st.integers(RC_MIN - 100, RC_MAX + 100), min_size=5, max_size=7))
+def test_the_gate_refuses_exactly_what_the_library_would_not_send(rc):
+    """One definition of a command's values: what `CommandSender` (the library an OBC
+    program uses) sends, the gate passes; what it refuses, the gate counts out of range."""
+    try:
+        CommandSender().next(rc)
+        sendable = True
+    except (TypeError, ValueError):
+        sendable = False
+    assert (CommandGate().offer(rc, NOW, NOW) != "out_of_range") == sendable

@@ -10,10 +10,17 @@ from pathlib import Path
 
 import pytest
 
-from tests.recording.test_rosbag import READ_S, assert_imu_matches, decoded_frames, flight
+from tests.recording.test_rosbag import (
+    READ_S,
+    STATUS_EVERY,
+    assert_imu_matches,
+    decoded_frames,
+    flight,
+)
 from tests.ros2 import peers
 from wftool.errors import Ros2Error, UsageError
-from wftool.fsp import SensorFrame
+from wftool.fsp import SensorFrame, UplinkFlag
+from wftool.recording.events import new_uplink
 from wftool.ros2.commands import CommandCounts
 from wftool.ros2.node import (
     FAST_DDS_PROFILES,
@@ -35,6 +42,7 @@ STREAM_TYPES = {
     "fsp/rpm": "wftool_msgs/msg/MotorRpm",
     "fsp/battery": "sensor_msgs/msg/BatteryState",
     "fsp/health": "wftool_msgs/msg/StreamHealth",
+    "fsp/uplink_status": "wftool_msgs/msg/UplinkStatus",
     "fsp/command_status": "wftool_msgs/msg/CommandStatus",
 }
 
@@ -57,9 +65,10 @@ def stamp_of(message: dict) -> int:
 def test_every_frame_reaches_a_separate_subscriber(bridge: Ros2Bridge, tmp_path: Path):
     """A flight fed as reads arrive: every frame on every per-frame topic, in order, stamped
     with its capture time on the ROS clock, in the frame asked for; battery at 10 Hz; each
-    health snapshot."""
+    health snapshot, and each uplink status of the FC it carries once; a subscriber that
+    joins later gets the latest status at once."""
     namespace = bridge.options.namespace
-    reads = flight(1500)
+    reads = flight(1500, statuses=True)
     monitor = StreamMonitor("socket://sim:5762")
     sampler = HealthSampler(monitor)
     out = tmp_path / "received.jsonl"
@@ -99,6 +108,24 @@ def test_every_frame_reaches_a_separate_subscriber(bridge: Ros2Bridge, tmp_path:
     assert [m["frames"] for m in got["fsp/health"]] == [s.frames for s in snapshots]
     status = got["fsp/command_status"]
     assert status and not status[-1]["accepting"] and status[-1]["received"] == 0
+    reports = [new_uplink(s, b) for s, b in zip(snapshots, [None, *snapshots])]
+    expected = [
+        (r.status.tx_time_us, r.status.flags, offset + int(r.t * 1e9)) for r in reports if r
+    ]
+    uplink = got["fsp/uplink_status"]
+    assert [(m["tx_time_us"], flags_of(m), stamp_of(m)) for m in uplink] == expected
+    assert len(expected) >= 1500 // STATUS_EVERY // 2 and not uplink[-1]["live"]
+
+    late = tmp_path / "late.jsonl"  # transient local: the latest, at once
+    latest = {f"{namespace}/fsp/uplink_status": STREAM_TYPES["fsp/uplink_status"] + "=latest"}
+    with peers.subscriber(late, 3.0, latest, matched=True):
+        pass
+    assert [line["message"] for line in peers.received(late)] == [uplink[-1]]
+
+
+def flags_of(message: dict) -> int:
+    """The `UplinkFlag` bits of an `UplinkStatus` message's flags."""
+    return sum(flag for flag in UplinkFlag if message[flag.name.lower()])
 
 
 def _assert_imu(messages: list[dict], frames: list[SensorFrame]) -> None:
@@ -137,7 +164,7 @@ def test_commands_pass_only_fresh_in_range_and_newer(bridge: Ros2Bridge):
     good = [[1100 + 100 * i, 1500, 1500, 1000, 1000, 1000] for i in range(5)]
     plan = [
         {"rc": good[0], "after_s": 0.05},
-        {"rc": [2100, 1500, 1500, 1000, 1000, 1000], "after_s": 0.05},  # out of range
+        {"rc": [2251, 1500, 1500, 1000, 1000, 1000], "after_s": 0.05},  # out of range
         {"rc": good[1], "after_s": 0.05},
         {"rc": good[1], "same_stamp": True, "after_s": 0.005},  # a stuck sender's repeat
         {"rc": good[2], "age_ns": 200 * MS, "after_s": 0.05},  # stale

@@ -1,21 +1,27 @@
 """`wftool ros2` end to end: the patched SITL streams FSP, the node (the real command, a
-process of its own) publishes it, and separate rclpy processes subscribe and command."""
+process of its own) publishes it, and separate rclpy processes subscribe and command; with a
+safety pilot's simulated radio, what the FC made of the commands reaches the graph."""
 
 from __future__ import annotations
 
 import itertools
 import os
+import signal
 import statistics
 import subprocess
 import sys
 import time
 from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
 
 from tests.ros2 import peers
-from wftool.sitl.session import Motion, VirtualFcSession
+from wftool.fc.msp import MspClient
+from wftool.sitl.radio import SimulatedPilot
+from wftool.sitl.session import PILOT_ARM, PILOT_OVERRIDE, Motion, VirtualFcSession
+from wftool.verify.preflight import FcWatcher
 
 pytestmark = [pytest.mark.slow, pytest.mark.usefixtures("ros2_env")]
 
@@ -29,15 +35,15 @@ def fsp_fc(sitl_binary: Path, tmp_path: Path) -> Iterator[VirtualFcSession]:
         yield session
 
 
-@pytest.fixture
-def node(fsp_fc: VirtualFcSession, tmp_path: Path) -> Iterator[str]:
-    """`wftool ros2` on the virtual FC's FSP port, taking commands: its namespace."""
-    assert fsp_fc.expected_rate_hz == pytest.approx(1e9 / PERIOD_NS)
+@contextmanager
+def ros2_node(url: str, tmp_path: Path, seconds: float) -> Iterator[str]:
+    """`wftool ros2` on the FSP port `url`, taking commands, for at most `seconds`: its
+    namespace."""
     namespace = peers.namespace_of(tmp_path)
     log = (tmp_path / "node.log").open("w")
     process = subprocess.Popen(
-        [sys.executable, "-m", "wftool", "ros2", "--port", fsp_fc.fsp_url, "--namespace",
-         namespace, "--accept-commands", "--duration", str(SUBSCRIBE_S + 30)],
+        [sys.executable, "-m", "wftool", "ros2", "--port", url, "--namespace", namespace,
+         "--accept-commands", "--duration", str(seconds)],
         stdout=log, stderr=subprocess.STDOUT, env=os.environ.copy(),
     )  # fmt: skip
     try:
@@ -47,6 +53,14 @@ def node(fsp_fc: VirtualFcSession, tmp_path: Path) -> Iterator[str]:
         process.wait(timeout=20)
         log.close()
     assert process.returncode in (0, -15, 143), (tmp_path / "node.log").read_text()
+
+
+@pytest.fixture
+def node(fsp_fc: VirtualFcSession, tmp_path: Path) -> Iterator[str]:
+    """`wftool ros2` on the virtual FC's FSP port, taking commands: its namespace."""
+    assert fsp_fc.expected_rate_hz == pytest.approx(1e9 / PERIOD_NS)
+    with ros2_node(fsp_fc.fsp_url, tmp_path, SUBSCRIBE_S + 30) as namespace:
+        yield namespace
 
 
 def stamp_of(message: dict) -> int:
@@ -99,3 +113,77 @@ def test_a_subscriber_gets_every_frame_on_the_sample_grid_and_commands_fly(
     assert status["sent"] >= 0.9 * len(plan), status
     health = got["health"][-1]
     assert health["connected"] and health["lost_frames"] == 0 and health["fc_drops"] == 0
+
+
+@pytest.fixture
+def piloted(sitl_binary: Path, tmp_path: Path) -> Iterator[tuple[VirtualFcSession, FcWatcher]]:
+    """A virtual FC a safety pilot flies (its simulated radio the receiver), armed by the
+    pilot with the override switch on; and what the FC reports over MSP, watched."""
+    with (
+        VirtualFcSession(sitl_binary, tmp_path / "fc", motion=Motion(), port_base=None,
+                         pilot=True) as fc,
+        MspClient.open(fc.msp_url) as msp,
+    ):  # fmt: skip
+        assert fc.radio is not None
+        watcher = FcWatcher(msp).start()
+        try:
+            assert watcher.wait(lambda s: s.can_arm, time.monotonic(), 20.0), "arming disabled"
+            SimulatedPilot(fc.radio, PILOT_OVERRIDE, PILOT_ARM).hold(armed=True, override=True)
+            on = watcher.wait(lambda s: s.armed and s.override, time.monotonic(), 5.0)
+            assert on is not None, "the pilot cannot arm with the override on"
+            yield fc, watcher
+        finally:
+            watcher.stop()
+
+
+def test_a_subscriber_sees_the_fc_hand_the_sticks_back_and_lose_its_radio(piloted, tmp_path):
+    """A ROS 2 program flies the virtual FC through `wftool ros2` under the pilot's override,
+    then stops; then the pilot's radio goes silent, and comes back. A separate subscriber of
+    fsp/uplink_status sees it all as the FC reports it, in order: the commands in effect,
+    the timeout that hands the sticks back to the pilot (override still on), RX loss, the
+    failsafe, the radio back."""
+    fc, watcher = piloted
+    pilot = SimulatedPilot(fc.radio, PILOT_OVERRIDE, PILOT_ARM)
+    out = tmp_path / "uplink.jsonl"
+    with ros2_node(fc.fsp_url, tmp_path, 120) as namespace:
+        topics = {f"{namespace}/fsp/uplink_status": "wftool_msgs/msg/UplinkStatus"}
+        with peers.subscriber(out, 120, topics, matched=True) as subscriber:
+            rc = [1600, 1450, 1550, 1300, 1000, 1000]
+            plan = [{"rc": rc, "after_s": 0.01} for _ in range(100)]  # 100 Hz for a second
+            assert peers.command(f"{namespace}/fsp/command", plan) == "matched"
+            t = time.monotonic()  # the commands stopped at least 0.5 s ago: the pilot's sticks
+            assert watcher.wait(lambda s: abs(s.rc[0] - 1500) <= 5 and s.armed, t - 1.0, 2.0)
+            pilot.transmitter(False)
+            t = time.monotonic()
+            assert watcher.wait(lambda s: s.rx_loss, t, 2.0), "no RX loss"
+            assert watcher.wait(lambda s: s.failsafe, t, 5.0), "no failsafe"
+            time.sleep(0.3)
+            pilot.transmitter(True)
+            assert watcher.wait(lambda s: not s.rx_loss, time.monotonic(), 5.0), "no radio"
+            time.sleep(0.5)
+            subscriber.send_signal(signal.SIGTERM)
+    statuses = [line["message"] for line in peers.received(out)]
+    stamps = [stamp_of(m) for m in statuses]
+    assert stamps == sorted(stamps) and len(statuses) > 20
+
+    def first(after: int, predicate) -> int:
+        found = next((i for i in range(after, len(statuses)) if predicate(statuses[i])), None)
+        assert found is not None, statuses[after:][-3:]
+        return found
+
+    flying = first(0, lambda m: m["live"] and m["override"] and m["armed"])
+    assert not statuses[flying]["obc_receiver"] and statuses[flying]["failsafe_phase"] == 0
+    last_live = max(i for i, m in enumerate(statuses) if m["live"])
+    handed_back = last_live + 1  # the FC reports the timeout at once
+    back = statuses[handed_back]
+    assert not back["live"] and back["override"] and back["armed"] and not back["rx_loss"]
+    assert back["timeouts"] == statuses[last_live]["timeouts"] + 1
+    assert 50 <= statuses[last_live]["accepted"] <= back["accepted"] <= len(plan)
+    timed_out = back["timed_out"]["sec"] * 1_000_000_000 + back["timed_out"]["nanosec"]
+    assert stamps[last_live] <= timed_out <= stamps[handed_back]
+    lost = first(handed_back, lambda m: m["rx_loss"])
+    assert not statuses[lost]["live"] and statuses[lost]["timeouts"] == back["timeouts"]
+    failsafe = first(lost, lambda m: m["failsafe_phase"] != 0)
+    recovered = first(failsafe, lambda m: not m["rx_loss"])
+    assert all(m["rx_loss"] for m in statuses[lost:recovered])
+    assert statuses[-1]["timeouts"] == back["timeouts"]  # no command since

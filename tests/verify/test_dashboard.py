@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from rich.console import Console
 
-from tests.verify.test_monitor import feed_steady, feed_two_way
+from tests.verify.test_monitor import feed_fc_uplink, feed_steady, feed_two_way
 from wftool.verify.criteria import Criteria, judge
 from wftool.verify.dashboard import render
 from wftool.verify.monitor import StreamMonitor
@@ -64,3 +64,33 @@ def test_dashboard_shows_a_port_and_notes_as_text():
     text = screen(monitor)
     assert "FSP socket://[/]x\\x1b[2J:1 — disconnected" in text
     assert "\x1b" not in text
+
+
+def fc_uplink_lines(text: str) -> str:
+    lines = text.splitlines()
+    at = next(i for i, line in enumerate(lines) if "FC uplink" in line)
+    return " ".join(" ".join(line.strip("│ ").split()) for line in lines[at : at + 2])
+
+
+def test_dashboard_shows_what_the_fc_made_of_the_commands():
+    monitor = StreamMonitor("socket://127.0.0.1:5762")
+    feed_fc_uplink(monitor, 1200)  # commands timed out: the pilot has the sticks back
+    shown = fc_uplink_lines(screen(monitor))
+    assert shown == (
+        "FC uplink accepted 500 stale 2 rejected 1 timeouts 1 (50 ms) on: override, armed "
+        "failsafe IDLE"
+    )
+    lost = StreamMonitor("socket://127.0.0.1:5762")
+    feed_fc_uplink(lost, 2100)  # and the pilot's radio lost
+    assert "on: override, RX loss, armed failsafe RX_LOSS_DETECTED" in fc_uplink_lines(screen(lost))
+    assert "FC uplink" not in screen(StreamMonitor("/dev/ttyTHS1"))  # no command, no status
+
+
+def test_an_fc_uplink_status_that_stopped_coming_shows_its_age():
+    monitor = StreamMonitor("socket://127.0.0.1:5762")
+    feed_fc_uplink(monitor, 1200)
+    read_at = monitor.summary().fc_uplink.status.arrival_time
+    console = Console(record=True, width=120, color_system=None)
+    console.print(render(monitor.summary(read_at + 3.0), None, None))
+    assert "as of 3.0 s ago" in fc_uplink_lines(console.export_text())
+    assert "s ago" not in fc_uplink_lines(screen(monitor))

@@ -30,7 +30,8 @@ from websockets.sync.client import ClientConnection, connect
 
 from tests.recording.test_rosbag import assert_imu_matches, decoded_frames, flight, stamp_of
 from wftool.errors import UsageError
-from wftool.recording.events import StreamHealth
+from wftool.fsp import UplinkStatus
+from wftool.recording.events import StreamHealth, UplinkReport
 from wftool.recording.ros2msg import WFTOOL_MSGS
 from wftool.verify.foxglove import TOPICS, FoxgloveLive, exposure_warning
 from wftool.verify.viewer_gate import GateLimits
@@ -101,8 +102,13 @@ def wait_subscribed(live: FoxgloveLive, topics: set[str]) -> None:
 
 def test_viewer_receives_what_was_published():
     frames = decoded_frames(flight(100))  # 200 frames with OBC times
+    uplink = [  # the FC's statuses: none yet, commands flying, then timed out
+        None,
+        UplinkReport(UplinkStatus(1, 10, 1, 0, 0, 0, 50, 0b10011, 0), 5000.5, None),
+        UplinkReport(UplinkStatus(9, 90, 9, 1, 1, 0, 50, 0b10010, 0, 70), 5001.5, 5001.25),
+    ]
     health = [
-        StreamHealth(5000.0 + i, i, 0, True, i > 0, True, 2 * i, 4 * i, 0, 0, i, 0, 0, 0)
+        StreamHealth(5000.0 + i, i, 0, True, i > 0, True, 2 * i, 4 * i, 0, 0, i, 0, 0, 0, uplink[i])
         for i in range(3)
     ]
     with FoxgloveLive(port=0) as live:
@@ -117,7 +123,7 @@ def test_viewer_receives_what_was_published():
         for index, frame in enumerate(frames):
             live.publish(frame, health[index * len(health) // len(frames)])
         battery_count = 1 + int((frames[-1].obc_time - frames[0].obc_time) / 0.1)
-        received = viewer.receive(4 * len(frames) + battery_count + len(health))
+        received = viewer.receive(4 * len(frames) + battery_count + len(health) + 2)
         viewer.close()
     offset = live._encoder.wall_offset_ns
     stamps = [offset + int(f.obc_time * 1e9) for f in frames]
@@ -140,6 +146,12 @@ def test_viewer_receives_what_was_published():
     assert [(m.seq, m.fc_drops, m.clock_locked) for _, m in received["/fsp/health"]] == [
         (h.seq, h.fc_drops, h.clock_locked) for h in health
     ]
+    statuses = received["/fsp/uplink_status"]
+    assert [(t, m.accepted, m.live, m.override, m.armed, m.timeouts) for t, m in statuses] == [
+        (offset + int(5000.5e9), 1, True, True, True, 0),
+        (offset + int(5001.5e9), 9, False, True, True, 1),
+    ]
+    assert stamp_of(statuses[1][1]) == offset + int(5001.5e9)
 
 
 def _rss_bytes() -> int:

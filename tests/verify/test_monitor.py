@@ -8,10 +8,10 @@ import pytest
 
 from tests.fsp.test_decoder import frame, stream
 from tests.fsp.test_twoway import RC, Link
-from wftool.fsp import CommandPacket, StatePacket
+from wftool.fsp import CommandPacket, StatePacket, UplinkFlag
 from wftool.fsp.encoder import encode_state
 from wftool.verify.criteria import Criteria, judge
-from wftool.verify.monitor import IntervalHistogram, StreamMonitor
+from wftool.verify.monitor import HealthSampler, IntervalHistogram, StreamMonitor
 from wftool.verify.uplink import UplinkTracker, pattern_command
 
 PACKET_S = 2 * 953e-6
@@ -159,3 +159,63 @@ def test_time_replies_show_round_trips_and_the_offset_uncertainty():
     plain = StreamMonitor("test")
     feed_two_way(plain, 3.0)
     assert plain.summary().round_trip is not None and plain.summary().two_way is None
+
+
+def feed_fc_uplink(monitor: StreamMonitor, packets: int, t0: float = 5000.0) -> list:
+    """A piloted FC's stream with its uplink statuses (`flight(statuses=True)`: timed out
+    from packet 1000 on, RX loss from 2000 on), fed as the live loop does; every health
+    snapshot taken, in order."""
+    from tests.recording.test_rosbag import READ_S, flight
+
+    sampler = HealthSampler(monitor)
+    monitor.connected(t0)
+    t, snapshots = t0, []
+    for data in flight(packets, statuses=True):
+        t += READ_S
+        health = sampler.sample(monitor.feed(data, t), t)
+        if health is not None and (not snapshots or health is not snapshots[-1]):
+            snapshots.append(health)
+    return snapshots
+
+
+def test_the_fcs_uplink_status_is_in_the_summary_its_json_and_the_health():
+    from tests.recording.test_rosbag import READ_S
+
+    monitor = StreamMonitor("test")
+    snapshots = feed_fc_uplink(monitor, 1200)
+    summary = monitor.summary()
+    status = summary.fc_uplink.status
+    assert status == monitor.decoder.uplink_status  # the newest
+    assert status.has(UplinkFlag.OVERRIDE) and not status.has(UplinkFlag.LIVE)
+    assert summary.fc_uplink_age_s == pytest.approx(0.0, abs=0.1)
+    # its FC times on the OBC clock: when the read that brought it came, within a read
+    sent_t = summary.fc_uplink.t
+    assert sent_t == pytest.approx(status.arrival_time, abs=READ_S)
+    waited_s = (status.tx_time_us - status.timed_out_us) % 2**32 * 1e-6
+    assert summary.fc_uplink.timed_out_t == pytest.approx(sent_t - waited_s, abs=1e-5)
+    data = json.loads(json.dumps(summary.as_json()))["fc_uplink"]
+    assert data == data | {
+        "accepted": 500, "stale": 2, "rejected": 1, "timeouts": 1, "timeout_ms": 50,
+        "live": False, "override": True, "obc_receiver": False, "rx_loss": False,
+        "armed": True, "failsafe_phase": "IDLE", "fc_time_us": status.sent_us,
+        "timed_out_fc_time_us": status.timed_out_at_us,
+    }  # fmt: skip
+    assert snapshots[-1].uplink is not None and snapshots[-1].uplink.status.accepted == 500
+    # the change at packet 1000 went to the sinks in the read that brought it
+    first_timed_out = next(h for h in snapshots if h.uplink and h.uplink.status.timeouts)
+    before = snapshots[snapshots.index(first_timed_out) - 1]
+    assert 0 < first_timed_out.t - before.t < 0.1
+    assert first_timed_out.t == first_timed_out.uplink.status.arrival_time
+    # counters alone wait for the period: no more snapshots than 10 Hz and the 2 changes
+    span_s = snapshots[-1].t - snapshots[0].t
+    assert len(snapshots) <= span_s * 10 + 3
+
+
+def test_no_uplink_status_before_the_fc_sends_one():
+    monitor = StreamMonitor("test")
+    monitor.connected(0.0)
+    feed_steady(monitor, range(200), 0.0)
+    summary = monitor.summary()
+    assert summary.fc_uplink is None and summary.fc_uplink_age_s is None
+    assert summary.as_json()["fc_uplink"] is None
+    assert summary.health(None, 1.0).uplink is None

@@ -16,6 +16,7 @@ from pathlib import Path
 import pytest
 
 from tests.conftest import run_cli
+from tests.recording.test_rosbag import read_bag
 from wftool.sitl.process import free_port_base
 from wftool.sitl.session import Motion, VirtualFcSession
 from wftool.verify.live import LiveOptions, run_live
@@ -141,3 +142,38 @@ def test_sitl_time_reply_verify_shows_round_trips_and_the_offset_uncertainty(
     code, replayed, _ = verify_json(capsys, "replay", str(recording))
     assert code == 0 and replayed["round_trip"] == live["round_trip"]
     assert replayed["two_way"] == two_way
+
+
+def test_what_the_fc_made_of_the_commands_is_shown_recorded_and_replayed(
+    sitl_binary: Path, capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    """`wftool sitl --pilot --uplink --verify`: the FC reports what it made of the uplink
+    pattern's commands (E3); the dashboard and --json show its newest report (commands in
+    effect under the pilot's override, the pilot's radio its receiver, disarmed), the
+    recording keeps its reports, and replay shows the same."""
+    recording = tmp_path / "run"
+    code, live, err = verify_json(
+        capsys, "sitl", "--binary", str(sitl_binary), "--workdir", str(tmp_path / "fc"),
+        "--port-base", str(free_port_base()), "--pilot", "--uplink", "--verify", "5",
+        "--record", str(recording),
+    )  # fmt: skip
+    assert code == 0, err
+    fc, sent = live["fc_uplink"], live["uplink"]["commands_sent"]
+    assert fc is not None and sent >= 200
+    assert sent - 15 <= fc["accepted"] <= sent  # the newest report: at most 100 ms old
+    assert fc["rejected"] == 0 and fc["timeout_ms"] == 50 and 0 <= fc["age_s"] < 0.5
+    flags = {name: fc[name] for name in ("live", "override", "obc_receiver", "rx_loss", "armed")}
+    assert flags == {"live": True, "override": True, "obc_receiver": False, "rx_loss": False,
+                     "armed": False}  # fmt: skip
+    assert fc["failsafe_phase"] == "IDLE"
+    shown = " ".join(err.replace("│", " ").split())  # the last dashboard (stderr with --json)
+    assert f"FC uplink accepted {fc['accepted']:,} stale {fc['stale']:,}" in shown
+    assert "on: live, override failsafe IDLE" in shown
+
+    statuses = [m for _, m in read_bag(recording)["/fsp/uplink_status"]]
+    assert len(statuses) >= 5 * 10 * 0.8  # about every one the FC sent, at 10 Hz
+    assert all(m.override and not m.obc_receiver for m in statuses)
+    accepted = [m.accepted for m in statuses]
+    assert accepted == sorted(accepted) and accepted[-1] <= fc["accepted"]
+    code, replayed, _ = verify_json(capsys, "replay", str(recording))
+    assert code == 0 and replayed["fc_uplink"] == fc

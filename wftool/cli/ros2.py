@@ -13,8 +13,10 @@ import click
 from wftool.cli.verify import _duration, _options, err
 from wftool.errors import UsageError
 from wftool.fsp import DEFAULT_BAUDRATE, ESTIMATORS
-from wftool.ros2.commands import DEFAULT_MAX_AGE_NS, RC_MAX, RC_MIN
+from wftool.fsp.packets import RC_PULSE_US
+from wftool.ros2.commands import DEFAULT_MAX_AGE_NS
 from wftool.ros2.node import COMMAND_TOPIC, DEFAULT_DEPTH, Ros2Bridge, Ros2Options
+from wftool.verify.dashboard import UPLINK_FLAGS
 from wftool.verify.monitor import StreamSummary
 from wftool.verify.session import VerifySession
 
@@ -83,7 +85,7 @@ def describe(bridge: Ros2Bridge) -> list[str]:
         lines.append(
             f"commands: [bold]taken[/] on {command}: sent once each, if at most "
             f"{options.command_max_age_ns / 1e6:g} ms old and every value in "
-            f"{RC_MIN}-{RC_MAX}"
+            f"{RC_PULSE_US[0]}-{RC_PULSE_US[1]} µs"
         )
     return lines
 
@@ -123,7 +125,8 @@ def ros2(
     """A ROS 2 node publishing the FSP stream live, as recordings hold it (extra `ros2`).
 
     Every frame on fsp/imu, fsp/attitude, fsp/rc and fsp/rpm, stamped with its capture time
-    on the ROS clock; fsp/battery and fsp/health (loss, drops, reconnects) at 10 Hz. It stays
+    on the ROS clock; fsp/battery and fsp/health (loss, drops, reconnects) at 10 Hz;
+    fsp/uplink_status, what the FC made of the commands (RX loss, override, failsafe). It stays
     on this host unless ROS_AUTOMATIC_DISCOVERY_RANGE says otherwise, and takes commands only
     with --accept-commands.
     """
@@ -181,6 +184,14 @@ def status_line(summary: StreamSummary, bridge: Ros2Bridge) -> str:
         counts = bridge.command_counts
         line += f"; commands {counts.received} received, {counts.sent} sent, "
         line += f"{counts.dropped} dropped"
+    report = summary.fc_uplink
+    if report is not None:  # what the FC made of them (E3)
+        status = report.status
+        on = [name for name, flag, _ in UPLINK_FLAGS if status.has(flag)] or ["no flag on"]
+        line += (
+            f"; the FC: {status.accepted} accepted, {status.stale} stale, "
+            f"{status.timeouts} timeouts; {', '.join(on)}; failsafe {status.failsafe_phase_name}"
+        )
     return line
 
 

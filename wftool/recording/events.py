@@ -1,5 +1,6 @@
 """What a live run hands its recordings: its events in order (`Event`), health snapshots
-(`StreamHealth`), and the `Sink` protocol of whatever keeps or shows them.
+(`StreamHealth`, with the FC's newest `UplinkReport`), and the `Sink` protocol of whatever
+keeps or shows them.
 
     Event("connected", t)                  # t: OBC monotonic time, s
     Event("bytes", t, data)                # one read, exactly as read
@@ -12,7 +13,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal, NamedTuple, Protocol
 
-from wftool.fsp import ESTIMATORS, StatePacket
+from wftool.fsp import ESTIMATORS, StatePacket, UplinkStatus
 
 EventKind = Literal["connected", "disconnected", "bytes", "command"]
 EVENT_KINDS: tuple[EventKind, ...] = ("connected", "disconnected", "bytes", "command")
@@ -36,8 +37,22 @@ class Event(NamedTuple):
 
 
 @dataclass(frozen=True)
+class UplinkReport:
+    """The FC's newest uplink status (E3, spec §12): what it made of the commands, its FC
+    times on the OBC clock. What `/fsp/uplink_status` carries."""
+
+    status: UplinkStatus
+    t: float
+    """OBC time the FC sent it (its `tx_time_us` through the run's clock; when it was read
+    if the clock could not place it), s."""
+    timed_out_t: float | None
+    """OBC time of the FC's latest command timeout (`timed_out_us`); None before the first."""
+
+
+@dataclass(frozen=True)
 class StreamHealth:
-    """A snapshot of the stream's counters: what `/fsp/health` carries."""
+    """A snapshot of the stream's counters: what `/fsp/health` carries; and the FC's newest
+    uplink status, for `/fsp/uplink_status`."""
 
     t: float
     """OBC monotonic time of the snapshot, s."""
@@ -54,6 +69,18 @@ class StreamHealth:
     rejected_chunks: int
     resets: int
     reconnects: int
+    uplink: UplinkReport | None = None
+    """The FC's newest uplink status; None before the first (an FC never sent a command
+    sends none)."""
+
+
+def new_uplink(health: StreamHealth, before: StreamHealth | None) -> UplinkReport | None:
+    """The uplink status `health` carries if the snapshot `before` it did not: what a sink
+    publishes once."""
+    uplink = health.uplink
+    if uplink is None or (before is not None and uplink is before.uplink):
+        return None
+    return uplink
 
 
 class Sink(Protocol):

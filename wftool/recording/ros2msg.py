@@ -17,8 +17,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from wftool.fsp import SensorFrame
-from wftool.recording.events import EVENT_KINDS, Event, StreamHealth
+from wftool.fsp import SensorFrame, UplinkFlag
+from wftool.recording.events import EVENT_KINDS, Event, StreamHealth, UplinkReport
 
 FRAME_ID = "fc"
 STANDARD_GRAVITY = 9.80665
@@ -31,6 +31,7 @@ RC_TOPIC = "/fsp/rc"
 ATTITUDE_TOPIC = "/fsp/attitude"
 BATTERY_TOPIC = "/fsp/battery"
 HEALTH_TOPIC = "/fsp/health"
+UPLINK_STATUS_TOPIC = "/fsp/uplink_status"
 CDR_LE = b"\x00\x01\x00\x00"
 """The encapsulation header of little-endian plain CDR, as ROS 2 writes it."""
 
@@ -102,6 +103,7 @@ RC_CHANNELS_MSG = wftool_msg("RcChannels")
 MOTOR_RPM_MSG = wftool_msg("MotorRpm")
 ATTITUDE_MSG = wftool_msg("Attitude")
 STREAM_HEALTH_MSG = wftool_msg("StreamHealth")
+UPLINK_STATUS_MSG = wftool_msg("UplinkStatus")
 MSP_RC_MSG = wftool_msg("MspRc")
 STREAM_EVENT_MSG = wftool_msg("StreamEvent")
 STREAM_EVENTS_MSG = wftool_msg("StreamEvents")
@@ -139,6 +141,7 @@ RC_CHANNELS = _message_type("wftool_msgs/msg/RcChannels", RC_CHANNELS_MSG, *_HEA
 MOTOR_RPM = _message_type("wftool_msgs/msg/MotorRpm", MOTOR_RPM_MSG, *_HEADER_USES)
 ATTITUDE = _message_type("wftool_msgs/msg/Attitude", ATTITUDE_MSG, *_HEADER_USES)
 STREAM_HEALTH = _message_type("wftool_msgs/msg/StreamHealth", STREAM_HEALTH_MSG, *_HEADER_USES)
+UPLINK_STATUS = _message_type("wftool_msgs/msg/UplinkStatus", UPLINK_STATUS_MSG, *_HEADER_USES)
 STREAM_EVENT = _message_type("wftool_msgs/msg/StreamEvent", STREAM_EVENT_MSG)
 """One event per message: the MSP baseline's recordings, and FSP ones before `STREAM_EVENTS`."""
 STREAM_EVENTS = _message_type("wftool_msgs/msg/StreamEvents", STREAM_EVENTS_MSG)
@@ -205,6 +208,7 @@ class _Layouts:
     rpm: struct.Struct
     attitude: struct.Struct
     health: struct.Struct
+    uplink_status: struct.Struct
     msp_rc_head: struct.Struct
 
 
@@ -220,6 +224,7 @@ def _layouts(frame_id: str) -> _Layouts:
         rpm=_cdr(*header, "4H"),
         attitude=_cdr(*header, "3d"),
         health=_cdr(*header, "2I", "3?", "6Q", "2I"),
+        uplink_status=_cdr(*header, "5I", "H", f"{len(UplinkFlag)}?", "B", "2I", "i", "I"),
         msp_rc_head=_cdr(*header, "I"),
     )
 
@@ -307,6 +312,21 @@ class FrameEncoder:
             health.seq, health.epoch, health.e1, health.clock_locked, health.connected,
             health.packets, health.frames, health.lost_frames, health.lost_packets,
             health.fc_drops, health.rejected_chunks, health.resets, health.reconnects,
+        )  # fmt: skip
+
+    def uplink_status(self, report: UplinkReport) -> bytes:
+        """An `UplinkStatus`, stamped when the FC sent it."""
+        sec, nsec = divmod(self.stamp_ns(report.t), 1_000_000_000)
+        timed_out = (0, 0)
+        if report.timed_out_t is not None:
+            timed_out = divmod(self.stamp_ns(report.timed_out_t), 1_000_000_000)
+        status = report.status
+        layouts = self._layouts
+        return layouts.uplink_status.pack(
+            CDR_LE, sec, nsec, len(layouts.frame_id), layouts.frame_id,
+            status.command_seq, status.accepted, status.stale, status.rejected, status.timeouts,
+            status.timeout_ms, *(status.has(flag) for flag in UplinkFlag), status.failsafe_phase,
+            status.tx_time_us, status.timed_out_us, *timed_out,
         )  # fmt: skip
 
 

@@ -2,7 +2,8 @@
 that MCAP file alone, which `ros2 bag play`, rosbags, Foxglove and PlotJuggler open as is.
 
 `BagFile` is the container for any topics; `RosbagWriter` records the FSP stream's
-(`/fsp/imu`, `/fsp/rpm`, `/fsp/rc`, `/fsp/battery`, `/fsp/health`, `/fsp/events`). Layout,
+(`/fsp/imu`, `/fsp/rpm`, `/fsp/rc`, `/fsp/battery`, `/fsp/health`, `/fsp/uplink_status`,
+`/fsp/events`). Layout,
 topics and rates: docs/recording.md.
 """
 
@@ -19,7 +20,7 @@ from wftool import __version__
 from wftool.errors import RecordingError, UsageError
 from wftool.fsp import SensorFrame, StatePacket
 from wftool.recording import ros2msg
-from wftool.recording.events import EVENT_TOPIC, Event, StreamHealth
+from wftool.recording.events import EVENT_TOPIC, Event, StreamHealth, new_uplink
 from wftool.recording.mcapprocess import McapProcess
 from wftool.recording.ros2msg import (
     BATTERY_TOPIC,
@@ -28,6 +29,7 @@ from wftool.recording.ros2msg import (
     RC_TOPIC,
     RPM_TOPIC,
     SLOW_PERIOD_NS,
+    UPLINK_STATUS_TOPIC,
     FrameEncoder,
     MessageType,
     Throttle,
@@ -39,6 +41,7 @@ TOPICS: dict[str, MessageType] = {
     RC_TOPIC: ros2msg.RC_CHANNELS,
     BATTERY_TOPIC: ros2msg.BATTERY_STATE,
     HEALTH_TOPIC: ros2msg.STREAM_HEALTH,
+    UPLINK_STATUS_TOPIC: ros2msg.UPLINK_STATUS,
     EVENT_TOPIC: ros2msg.STREAM_EVENTS,
 }
 METADATA_VERSION = 8
@@ -209,6 +212,7 @@ class RosbagWriter(BagFile):
         ids = self.channels
         self._imu, self._rpm, self._rc = ids[IMU_TOPIC], ids[RPM_TOPIC], ids[RC_TOPIC]
         self._battery, self._health = ids[BATTERY_TOPIC], ids[HEALTH_TOPIC]
+        self._uplink_status = ids[UPLINK_STATUS_TOPIC]
         self._events = ids[EVENT_TOPIC]
         self._battery_throttle = Throttle()
         self._rc_sent: tuple | None = None  # values of the last RC message
@@ -239,7 +243,8 @@ class RosbagWriter(BagFile):
             self._writer.add_message(self._events, log_ns, ros2msg.encode_events(batch), apart=True)
 
     def packets(self, packets: Sequence[StatePacket], health: StreamHealth | None = None) -> None:
-        """The frames of `packets`, and `health` if it is a new snapshot."""
+        """The frames of `packets`, and `health` if it is a new snapshot (with the FC's
+        uplink status, if that is new too)."""
         add, encoder = self._writer.add_message, self._encoder
         imu_id, rpm_id = self._imu, self._rpm
         imu, rpm = encoder.imu, encoder.rpm
@@ -259,8 +264,11 @@ class RosbagWriter(BagFile):
                     add(self._battery, log_ns, encoder.battery(frame, stamp))
         self._log_ns = log_ns
         if health is not None and health is not self._last_health:
-            self._last_health = health
+            before, self._last_health = self._last_health, health
             add(self._health, log_ns, encoder.health(health))
+            uplink = new_uplink(health, before)
+            if uplink is not None:
+                add(self._uplink_status, log_ns, encoder.uplink_status(uplink))
 
     def _rc_message(self, frame: SensorFrame, stamp: int, log_ns: int, rc: tuple) -> None:
         add, encode = self._writer.add_message, self._encoder.rc

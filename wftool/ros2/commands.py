@@ -16,10 +16,9 @@ import threading
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
-RC_MIN = 1000
-RC_MAX = 2000
-"""The range a commanded RC value must be in (µs-style; spec §5)."""
-RC_CHANNELS = ("roll", "pitch", "yaw", "throttle", "aux3", "aux4")
+from wftool.fsp.encoder import checked_rc
+from wftool.fsp.packets import RcValues
+
 DEFAULT_MAX_AGE_NS = 50_000_000
 """How old a command may be when it is sent: the FC's default command timeout (spec §11),
 so a command is never older when it leaves than the FC would let one last."""
@@ -40,7 +39,8 @@ class CommandCounts:
     future: int = 0
     """Stamped ahead of the node's clock (beyond FUTURE_TOLERANCE_NS)."""
     out_of_range: int = 0
-    """A value outside [RC_MIN, RC_MAX], or not six of them."""
+    """Not what a command may carry (`wftool.fsp.encoder.checked_rc`): six whole values
+    within Betaflight's pulse range `RC_PULSE_US`."""
     not_newer: int = 0
     """Stamped no later than a command taken before: a repeat, a replay, or out of order."""
     superseded: int = 0
@@ -60,7 +60,7 @@ class CommandGate:
         self.max_age_ns = max_age_ns
         self._lock = threading.Lock()
         self._counts = CommandCounts()
-        self._pending: tuple[tuple[int, ...], int] | None = None  # (rc, stamp)
+        self._pending: tuple[RcValues, int] | None = None  # (rc, stamp)
         self._newest_ns: int | None = None  # stamp of the newest command taken
 
     @property
@@ -71,22 +71,26 @@ class CommandGate:
     def offer(self, rc: Sequence[int], stamp_ns: int, now_ns: int) -> str | None:
         """Take `rc` (stamped `stamp_ns` on the clock of `now_ns`) as the next command to
         send; None if taken, else the `CommandCounts` field it was counted under."""
-        verdict = self._verdict(rc, stamp_ns, now_ns)
+        try:
+            values = checked_rc(rc)
+        except (TypeError, ValueError):
+            verdict: str | None = "out_of_range"
+        else:
+            verdict = self._verdict(stamp_ns, now_ns)
         with self._lock:
             counts = replace(self._counts, received=self._counts.received + 1)
             if verdict is None:
                 if self._pending is not None:
                     counts = replace(counts, superseded=counts.superseded + 1)
-                self._pending = (tuple(rc), stamp_ns)
+                self._pending = (values, stamp_ns)
                 self._newest_ns = stamp_ns
             else:
                 counts = replace(counts, **{verdict: getattr(counts, verdict) + 1})
             self._counts = counts
         return verdict
 
-    def _verdict(self, rc: Sequence[int], stamp_ns: int, now_ns: int) -> str | None:
-        if len(rc) != len(RC_CHANNELS) or not all(RC_MIN <= value <= RC_MAX for value in rc):
-            return "out_of_range"
+    def _verdict(self, stamp_ns: int, now_ns: int) -> str | None:
+        """What is wrong with a command's stamp, if anything."""
         if stamp_ns - now_ns > FUTURE_TOLERANCE_NS:
             return "future"
         if now_ns - stamp_ns > self.max_age_ns:
@@ -96,7 +100,7 @@ class CommandGate:
             return "not_newer"
         return None
 
-    def take(self, now_ns: int) -> tuple[int, ...] | None:
+    def take(self, now_ns: int) -> RcValues | None:
         """The command to send now, if one is pending and still fresh; it is not offered
         again, whether or not the port takes it (`sent` counts those it took)."""
         with self._lock:

@@ -21,7 +21,7 @@ from wftool.errors import Ros2Error, UsageError
 from wftool.extras import require
 from wftool.fsp import StatePacket
 from wftool.recording import ros2msg as msgs
-from wftool.recording.events import Event, StreamHealth
+from wftool.recording.events import Event, StreamHealth, new_uplink
 from wftool.recording.ros2msg import FrameEncoder, Throttle
 from wftool.ros2.commands import DEFAULT_MAX_AGE_NS, CommandCounts, CommandGate
 
@@ -172,6 +172,9 @@ class Ros2Bridge:
         ]
         self._battery = publisher(msgs.BATTERY_TOPIC, msgs.BATTERY_STATE, latest).publish
         self._health = publisher(msgs.HEALTH_TOPIC, msgs.STREAM_HEALTH, latest).publish
+        self._uplink_status = publisher(
+            msgs.UPLINK_STATUS_TOPIC, msgs.UPLINK_STATUS, latest
+        ).publish
         self._status_publisher = node.create_publisher(CommandStatus, COMMAND_STATUS_TOPIC, latest)
         self._status_type = CommandStatus
         self._battery_throttle = Throttle()
@@ -226,7 +229,8 @@ class Ros2Bridge:
         """Events (reads, connects) are the recording's business; the node publishes frames."""
 
     def packets(self, packets: Sequence[StatePacket], health: StreamHealth | None = None) -> None:
-        """Publish every frame of `packets` (and `health`, if it is a new snapshot)."""
+        """Publish every frame of `packets` (and `health`, and the FC's uplink status in it,
+        if new)."""
         encoder = self._encoder
         stamp = 0
         for packet in packets:
@@ -238,8 +242,11 @@ class Ros2Bridge:
                 if self._battery_throttle.due(stamp):
                     self._battery(encoder.battery(frame, stamp))
         if health is not None and health is not self._last_health:
-            self._last_health = health
+            before, self._last_health = self._last_health, health
             self._health(encoder.health(health))
+            uplink = new_uplink(health, before)
+            if uplink is not None:
+                self._uplink_status(encoder.uplink_status(uplink))
         if stamp and self._status_throttle.due(stamp):
             self.publish_command_status(stamp)
 

@@ -15,7 +15,7 @@ from rich.panel import Panel
 from rich.text import Text
 
 from wftool.display import printable
-from wftool.fsp import SensorFrame
+from wftool.fsp import SensorFrame, UplinkFlag
 from wftool.verify.criteria import Verdict
 from wftool.verify.monitor import OUTLIER, IntervalSummary, StreamSummary
 
@@ -154,6 +154,44 @@ def _uplink(summary: StreamSummary) -> Text | None:
     )
 
 
+STALE_UPLINK_S = 0.5
+"""An FC uplink status older than this is shown with its age: the FC sends one every 100 ms."""
+UPLINK_FLAGS = (
+    ("live", UplinkFlag.LIVE, "green"),
+    ("override", UplinkFlag.OVERRIDE, "green"),
+    ("OBC receiver", UplinkFlag.OBC_RECEIVER, "yellow"),
+    ("RX loss", UplinkFlag.RX_LOSS, "bold red"),
+    ("armed", UplinkFlag.ARMED, "yellow"),
+)
+"""The flags of an uplink status as the dashboard names them, and the style of each when on."""
+
+
+def _fc_uplink(summary: StreamSummary) -> Text | None:
+    """What the FC made of the commands (E3, spec §12), once it says."""
+    report = summary.fc_uplink
+    if report is None:
+        return None
+    status = report.status
+    text = Text.from_markup(
+        f"[b]FC uplink[/] accepted {status.accepted:,}  stale {status.stale:,}  "
+        f"rejected {status.rejected:,}  timeouts {status.timeouts:,} "
+        f"({status.timeout_ms} ms)"
+    )
+    age = summary.fc_uplink_age_s
+    if age is not None and age > STALE_UPLINK_S:
+        text.append(f"  as of {age:.1f} s ago", style="yellow")
+    text.append("\n  on: ")  # only the flags that are: the line fits 80 columns
+    on = [(name, style) for name, flag, style in UPLINK_FLAGS if status.has(flag)]
+    for index, (name, style) in enumerate(on):
+        text.append(name, style=style)
+        text.append(", " if index < len(on) - 1 else "")
+    if not on:
+        text.append("–")
+    phase = status.failsafe_phase_name
+    text.append(f"   failsafe {phase}", style="" if status.failsafe_phase == 0 else "bold red")
+    return text
+
+
 def _two_way(summary: StreamSummary) -> Text | None:
     """Round trips and the offset's uncertainty, when the FC answers commands (spec §10)."""
     trip, two_way = summary.round_trip, summary.two_way
@@ -209,7 +247,7 @@ def render(
         Text(),
         *_values(latest),
     ]
-    for line in (_uplink(summary), _two_way(summary)):
+    for line in (_uplink(summary), _fc_uplink(summary), _two_way(summary)):
         if line is not None:
             parts += [Text(), line]
     if verdict is not None:

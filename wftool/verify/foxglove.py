@@ -23,11 +23,12 @@ from wftool.errors import UsageError
 from wftool.extras import require
 from wftool.fsp import SensorFrame, StatePacket
 from wftool.recording import ros2msg
-from wftool.recording.events import Event, StreamHealth
+from wftool.recording.events import Event, StreamHealth, new_uplink
 from wftool.recording.ros2msg import (
     BATTERY_TOPIC,
     HEALTH_TOPIC,
     LIVE_PER_FRAME,
+    UPLINK_STATUS_TOPIC,
     FrameEncoder,
     MessageType,
     Throttle,
@@ -42,6 +43,7 @@ TOPICS: dict[str, MessageType] = {
     **{topic: kind for topic, kind, _ in LIVE_PER_FRAME},
     BATTERY_TOPIC: ros2msg.BATTERY_STATE,
     HEALTH_TOPIC: ros2msg.STREAM_HEALTH,
+    UPLINK_STATUS_TOPIC: ros2msg.UPLINK_STATUS,
 }
 
 
@@ -119,6 +121,7 @@ class FoxgloveLive:
         ]
         self._battery = channels[BATTERY_TOPIC]
         self._health = channels[HEALTH_TOPIC]
+        self._uplink_status = channels[UPLINK_STATUS_TOPIC]
         self._channels = channels
         self._battery_throttle = Throttle()
         self._last_health: StreamHealth | None = None
@@ -141,7 +144,8 @@ class FoxgloveLive:
         health: StreamHealth | None = None,
         arrival_time: float | None = None,
     ) -> None:
-        """Queue `frame`'s messages (and `health`, if new) for the viewers; never blocks."""
+        """Queue `frame`'s messages (and `health`, and the FC's uplink status in it, if new)
+        for the viewers; never blocks."""
         stamp = self._encoder.frame_stamp_ns(frame, arrival_time)
         for channel, encode in self._per_frame:
             if channel.has_sinks():
@@ -149,10 +153,14 @@ class FoxgloveLive:
         if self._battery_throttle.due(stamp) and self._battery.has_sinks():
             self._battery.log(self._encoder.battery(frame, stamp), log_time=stamp)
         if health is not None and health is not self._last_health:
-            self._last_health = health
+            before, self._last_health = self._last_health, health
+            encoder = self._encoder
             if self._health.has_sinks():
-                self._health.log(
-                    self._encoder.health(health), log_time=self._encoder.stamp_ns(health.t)
+                self._health.log(encoder.health(health), log_time=encoder.stamp_ns(health.t))
+            uplink = new_uplink(health, before)
+            if uplink is not None and self._uplink_status.has_sinks():
+                self._uplink_status.log(
+                    encoder.uplink_status(uplink), log_time=encoder.stamp_ns(uplink.t)
                 )
 
     def event(self, event: Event) -> None:

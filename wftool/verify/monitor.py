@@ -15,14 +15,21 @@ from collections import Counter, deque
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 
-from wftool.fsp import CommandPacket, SensorFrame, StateDecoder, StatePacket
-from wftool.fsp.clock import ClockState
+from wftool.fsp import (
+    CommandPacket,
+    SensorFrame,
+    StateDecoder,
+    StatePacket,
+    UplinkFlag,
+    UplinkStatus,
+)
+from wftool.fsp.clock import ClockEstimator, ClockState
 from wftool.fsp.encoder import U32_MASK
 from wftool.fsp.estimators import ESTIMATORS
 from wftool.fsp.framing import Rejection
 from wftool.fsp.packets import SEQ_MODULUS, rc_values
 from wftool.fsp.twoway import RoundTrip, RoundTripRejection, TwoWayClockEstimator, TwoWayState
-from wftool.recording.events import Event, StreamHealth
+from wftool.recording.events import Event, StreamHealth, UplinkReport
 from wftool.recording.ros2msg import SLOW_PERIOD_NS
 from wftool.verify.uplink import UplinkStats, UplinkTracker
 
@@ -118,6 +125,12 @@ class StreamSummary:
     """Replies or round trips not used, by cause (`RoundTripRejection`)."""
     two_way: TwoWayState | None = None
     """The two-way estimate (offset uncertainty, d_min bounds) with `--clock twoway`."""
+    fc_uplink: UplinkReport | None = None
+    """What the FC made of the commands: its newest uplink status (E3, spec §12), once it
+    sends them (from the first command it receives on)."""
+    fc_uplink_age_s: float | None = None
+    """How long before the summary (OBC clock) `fc_uplink` was read: the FC sends one every
+    100 ms, so an old one means it stopped (a reset, a lost link)."""
 
     @property
     def errors(self) -> int:
@@ -151,6 +164,7 @@ class StreamSummary:
             rejected_chunks=self.errors,
             resets=self.resets,
             reconnects=self.reconnects,
+            uplink=self.fc_uplink,
         )
 
     def as_json(self) -> dict:
@@ -163,7 +177,40 @@ class StreamSummary:
         for key in ("clock", "two_way"):  # NaN (not yet known) is not JSON: null
             if data[key] is not None:
                 data[key] = {k: _finite_or_none(v) for k, v in data[key].items()}
+        if self.fc_uplink is not None:
+            data["fc_uplink"] = uplink_json(self.fc_uplink, self.fc_uplink_age_s)
         return data
+
+
+def uplink_json(report: UplinkReport, age_s: float | None = None) -> dict:
+    """An uplink report as plain data: the FC's counters, its flags by name (`UplinkFlag`),
+    the failsafe phase by name, and its times (FC µs, unwrapped; OBC s)."""
+    status = report.status
+    return {
+        "command_seq": status.command_seq,
+        "accepted": status.accepted,
+        "stale": status.stale,
+        "rejected": status.rejected,
+        "timeouts": status.timeouts,
+        "timeout_ms": status.timeout_ms,
+        **{flag.name.lower(): status.has(flag) for flag in UplinkFlag if flag.name},
+        "failsafe_phase": status.failsafe_phase_name,
+        "fc_time_us": status.sent_us,
+        "timed_out_fc_time_us": status.timed_out_at_us,
+        "obc_time": report.t,
+        "timed_out_obc_time": report.timed_out_t,
+        "age_s": age_s,
+    }
+
+
+def uplink_report(status: UplinkStatus, clock: ClockEstimator) -> UplinkReport:
+    """`status` with its FC times on the OBC clock, as `clock` places them now."""
+    t = clock.to_obc(status.sent_us) if status.sent_us is not None else None
+    if t is None:
+        assert status.arrival_time is not None, "a live or replayed status has its read's time"
+        t = status.arrival_time
+    at = status.timed_out_at_us
+    return UplinkReport(status, t, clock.to_obc(at) if at is not None else None)
 
 
 def _finite_or_none(value: object) -> object:
@@ -203,6 +250,8 @@ class StreamMonitor:
         self._connected_s = 0.0
         self._reconnects = 0
         self._recent: deque[tuple[float, int]] = deque()
+        self.fc_uplink: UplinkReport | None = None
+        """The FC's newest uplink status, its times placed when it arrived."""
 
     # -- events -----------------------------------------------------------------------------
 
@@ -245,6 +294,9 @@ class StreamMonitor:
         decoder = self.decoder
         before = decoder.last_packet
         packets = decoder.feed(data, t)
+        status = decoder.uplink_status
+        if status is not None and (self.fc_uplink is None or status is not self.fc_uplink.status):
+            self.fc_uplink = uplink_report(status, decoder.clock)
         if not packets:
             return packets
         previous = before
@@ -344,6 +396,12 @@ class StreamMonitor:
             round_trip=self.round_trips.summary(),
             round_trip_rejected={cause.value: n for cause, n in trips_rejected.items() if n},
             two_way=clock.two_way if isinstance(clock, TwoWayClockEstimator) else None,
+            fc_uplink=self.fc_uplink,
+            fc_uplink_age_s=(
+                now - self.fc_uplink.status.arrival_time
+                if self.fc_uplink is not None and self.fc_uplink.status.arrival_time is not None
+                else None
+            ),
         )
 
 
@@ -369,8 +427,9 @@ def _trips_rejected(decoder: StateDecoder) -> Counter[RoundTripRejection]:
 
 
 class HealthSampler:
-    """The run's `StreamHealth`, taken from the monitor at most every `period_s`: what the
-    live loop hands its sinks with each read."""
+    """The run's `StreamHealth`, taken from the monitor at most every `period_s`, and at
+    once when the FC reports a change of its uplink flags or failsafe phase (RX loss, the
+    override, a timeout): what the live loop hands its sinks with each read."""
 
     def __init__(self, monitor: StreamMonitor, period_s: float = SLOW_PERIOD_NS / 1e9) -> None:
         self._monitor = monitor
@@ -378,8 +437,25 @@ class HealthSampler:
         self.latest: StreamHealth | None = None
 
     def sample(self, packets: Sequence[StatePacket], t: float) -> StreamHealth | None:
-        """The latest snapshot; a new one if `packets` arrived and the period is up."""
+        """The latest snapshot; a new one if `packets` arrived and the period is up, or if
+        the FC's uplink status changed what it reports."""
         latest = self.latest
-        if packets and (latest is None or not 0 <= t - latest.t < self._period_s):
-            self.latest = latest = self._monitor.summary(t).health(packets[-1], t)
+        monitor = self._monitor
+        due = bool(packets) and (latest is None or not 0 <= t - latest.t < self._period_s)
+        if due or (latest is not None and _reports_a_change(monitor.fc_uplink, latest.uplink)):
+            newest = packets[-1] if packets else monitor.decoder.last_packet
+            self.latest = latest = monitor.summary(t).health(newest, t)
         return latest
+
+
+def _reports_a_change(new: UplinkReport | None, old: UplinkReport | None) -> bool:
+    """Whether the FC's uplink status `new` says more than `old` did: it is the first, or
+    its flags or failsafe phase differ (its counters move with every command)."""
+    if new is None or new is old:
+        return False
+    if old is None:
+        return True
+    return (new.status.flags, new.status.failsafe_phase) != (
+        old.status.flags,
+        old.status.failsafe_phase,
+    )

@@ -1,8 +1,11 @@
 """Makes the recordings here as an earlier wftool wrote them; tests read them with today's.
 
-Run from an export of the commit that writes the layout to keep (these: 3cce0e6, one ROS 2
-`StreamEvent` message per event, in the chunks of the frames), with the export first on
-PYTHONPATH: `python tests/recording/data/make_recordings.py tests/recording/data`.
+Run from an export of the commit that writes the layout to keep, with the export's `wftool`
+first on PYTHONPATH (these tests' helpers from this checkout):
+`python tests/recording/data/make_recordings.py tests/recording/data NAME...`. RECORDINGS:
+3cce0e6, one ROS 2 `StreamEvent` message per event, in the chunks of the frames;
+UPLINK_RECORDING: e1f7f62, before the FC's uplink statuses had a topic of their own, of an
+FC that sends them.
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ from wftool.recording.recorder import Recorder
 from wftool.verify.monitor import HealthSampler, StreamMonitor
 
 RECORDINGS = {"ros2-streamevent.mcap": "ros2", "json.mcap": "json"}
+UPLINK_RECORDING = "ros2-no-uplink-topic.mcap"
 PORT = "socket://sim:5762"
 
 
@@ -34,7 +38,16 @@ def events() -> list[Event]:
     return [*out, Event("disconnected", t)]
 
 
-def run(recorder: Recorder | None = None) -> StreamMonitor:
+def uplink_events() -> list[Event]:
+    """A run of an FC that reports on its uplink (E3): its statuses among the packets."""
+    t, out = 100.0, [Event("connected", 100.0)]
+    for data in flight(160, seed=7, statuses=True):
+        t += 0.0057
+        out.append(Event("bytes", t, data))
+    return [*out, Event("disconnected", t)]
+
+
+def run(recorder: Recorder | None = None, events=events) -> StreamMonitor:
     """The run of `events()` as its live loop saw it, recorded by `recorder` if given."""
     monitor = StreamMonitor(PORT)
     sampler = HealthSampler(monitor)
@@ -52,12 +65,13 @@ def run(recorder: Recorder | None = None) -> StreamMonitor:
     return monitor
 
 
-def main(directory: Path) -> None:
+def main(directory: Path, names: list[str]) -> None:
     metadata = {"port": PORT, "clock": "envelope"}
-    for name, record_format in RECORDINGS.items():
+    for name in names:
+        record_format = RECORDINGS.get(name, "ros2")
         with Recorder(directory / name, None, metadata, record_format=record_format) as recorder:
-            run(recorder)
+            run(recorder, uplink_events if name == UPLINK_RECORDING else events)
 
 
 if __name__ == "__main__":
-    main(Path(sys.argv[1]))
+    main(Path(sys.argv[1]), sys.argv[2:])
