@@ -15,7 +15,15 @@ from collections import Counter, deque
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 
-from wftool.fsp import CommandPacket, SensorFrame, StateDecoder, StatePacket
+from wftool.fsp import (
+    CommandOutcome,
+    CommandPacket,
+    CommandReport,
+    ReportBook,
+    SensorFrame,
+    StateDecoder,
+    StatePacket,
+)
 from wftool.fsp.clock import ClockState
 from wftool.fsp.encoder import U32_MASK
 from wftool.fsp.estimators import ESTIMATORS
@@ -79,6 +87,69 @@ class IntervalHistogram:
 
 
 @dataclass(frozen=True)
+class TimedSummary:
+    """What the FC reported on timed commands (E4, spec §13) over a run."""
+
+    reports: int
+    outcomes: dict[str, int]
+    """Commands per `CommandOutcome` name, by the FC's own counts (lost reports included)."""
+    lost_reports: int
+    apply: IntervalSummary | None
+    """Commands applied on time: the applying PID iteration − the FC time asked for (µs;
+    the FC's rule keeps it below one PID period)."""
+    latest_us: int | None
+    """The latest any command was applied after its time (µs; late ones included)."""
+
+    @property
+    def late(self) -> int:
+        return self.outcomes[CommandOutcome.LATE.name]
+
+    @property
+    def refused(self) -> int:
+        return (
+            self.outcomes[CommandOutcome.TOO_FAR.name]
+            + self.outcomes[CommandOutcome.QUEUE_FULL.name]
+        )
+
+    @property
+    def dropped(self) -> int:
+        return (
+            self.outcomes[CommandOutcome.SUPERSEDED.name]
+            + self.outcomes[CommandOutcome.EXPIRED.name]
+        )
+
+
+class TimedTracker:
+    """The FC's command reports of a run, as `TimedSummary`."""
+
+    def __init__(self) -> None:
+        self.book = ReportBook()
+        self.delays = IntervalHistogram()
+        self.latest_us: int | None = None
+
+    def add(self, report: CommandReport) -> None:
+        self.book.add(report)
+        delay = report.delay_us
+        if delay is None:
+            return
+        if report.outcome == CommandOutcome.ON_TIME:
+            self.delays.add(delay)
+        self.latest_us = delay if self.latest_us is None else max(self.latest_us, delay)
+
+    def summary(self) -> TimedSummary | None:
+        book = self.book
+        if not book.reports:
+            return None
+        return TimedSummary(
+            reports=book.reports,
+            outcomes={outcome.name: count for outcome, count in book.counts.items()},
+            lost_reports=book.lost,
+            apply=self.delays.summary(),
+            latest_us=self.latest_us,
+        )
+
+
+@dataclass(frozen=True)
 class StreamSummary:
     """Everything `verify` reports, as plain data (`as_json` for scripts)."""
 
@@ -118,6 +189,8 @@ class StreamSummary:
     """Replies or round trips not used, by cause (`RoundTripRejection`)."""
     two_way: TwoWayState | None = None
     """The two-way estimate (offset uncertainty, d_min bounds) with `--clock twoway`."""
+    timed: TimedSummary | None = None
+    """The FC's reports on timed commands (E4), when it sent any: when each acted."""
 
     @property
     def errors(self) -> int:
@@ -160,6 +233,8 @@ class StreamSummary:
             interval = getattr(self, key)
             if interval is not None:
                 data[key]["spread_us"] = interval.spread_us
+        if self.timed is not None and self.timed.apply is not None:
+            data["timed"]["apply"]["spread_us"] = self.timed.apply.spread_us
         for key in ("clock", "two_way"):  # NaN (not yet known) is not JSON: null
             if data[key] is not None:
                 data[key] = {k: _finite_or_none(v) for k, v in data[key].items()}
@@ -195,6 +270,7 @@ class StreamMonitor:
         assert self.decoder.round_trips is not None
         self.decoder.round_trips.on_round_trip = self._round_trip
         self.round_trips = IntervalHistogram()
+        self.timed = TimedTracker()
         self._commands = 0
         """Commands sent on this connection (a port opened with it numbers them from 0)."""
         self._connected_at: float | None = None
@@ -245,6 +321,8 @@ class StreamMonitor:
         decoder = self.decoder
         before = decoder.last_packet
         packets = decoder.feed(data, t)
+        for report in decoder.take_command_reports():
+            self.timed.add(report)
         if not packets:
             return packets
         previous = before
@@ -344,6 +422,7 @@ class StreamMonitor:
             round_trip=self.round_trips.summary(),
             round_trip_rejected={cause.value: n for cause, n in trips_rejected.items() if n},
             two_way=clock.two_way if isinstance(clock, TwoWayClockEstimator) else None,
+            timed=self.timed.summary(),
         )
 
 
