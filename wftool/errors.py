@@ -30,6 +30,11 @@ class PortError(WftoolError):
     exit_code = EXIT_USAGE
 
 
+class ClockError(WftoolError):
+    """The FC clock is not known well enough for what was asked: a timed command before the
+    stream's clock is locked, or for an OBC time the FC clock cannot express."""
+
+
 class ProtocolError(WftoolError):
     """The peer answered, but not as the protocol says (timeout, bad checksum, error reply)."""
 

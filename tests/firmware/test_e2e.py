@@ -97,6 +97,25 @@ def test_second_build_is_a_noop(project, sitl):
     assert sitl.manifest_path.stat().st_mtime_ns == manifest_mtime
 
 
+def test_a_changed_header_recompiles_what_includes_it(project, sitl):
+    """make's dependency files and its own names for the objects agree (ccache hands the
+    compiler relative paths): a header newer than the objects recompiles its includers."""
+    from wftool.firmware import builder, make
+
+    header = project.tree / "src" / "main" / "io" / "fsp_queue.h"
+    os.utime(header)  # now: newer than every object, older than what compiles next
+    try:
+        units = make.plan(builder.prepare(project, "sitl", BuildOptions(jobs=JOBS)).command).units
+        assert {"./src/main/io/fsp.c", "./src/main/io/fsp_queue.c"} <= set(units), units
+        assert "./src/main/io/fsp_codec.c" not in units  # it does not include it
+        again = build(project, "sitl", BuildOptions(jobs=JOBS))
+        assert again.compiled == len(units)
+        assert build(project, "sitl", BuildOptions(jobs=JOBS)).up_to_date
+    finally:
+        os.utime(header, None)
+        build(project, "sitl", BuildOptions(jobs=JOBS))
+
+
 def test_flags_select_their_own_objects(project, sitl):
     flagged = build(
         project,

@@ -17,8 +17,8 @@ def test_series_unit_tests_pass(fresh_clone: Project, sitl_build) -> None:
         pytest.skip("clang not installed (Betaflight's unit tests need it)")
     names = series_tests(fresh_clone)
     assert {
-        "test_fsp_unittest", "test_fsp_command_unittest", "test_rx_msp_override_unittest",
-        "test_acc_rpm_filter_unittest",
+        "test_fsp_unittest", "test_fsp_command_unittest", "test_fsp_queue_unittest",
+        "test_rx_msp_override_unittest", "test_acc_rpm_filter_unittest",
     } <= set(names)  # fmt: skip
     runs = run_unit_tests(fresh_clone)
     failed = {run.name: run.output[-2000:] for run in runs if not run.passed}

@@ -1,5 +1,5 @@
-"""spec/vectors' E2 time reply and E3 uplink status vectors are the firmware encoder's own
-output, byte for byte.
+"""spec/vectors' E2 time reply, E3 uplink status and E4 command report vectors are the
+firmware encoder's own output, byte for byte.
 
 The series' unit test writes them when FSP_VECTORS_DIR is set; the Python decoder is checked
 against these files (tests/fsp/test_vectors.py), so it is checked against the C encoder.
@@ -28,11 +28,15 @@ FIRMWARE_VECTORS = (
     "uplink_status.expected.json",
     "uplink_status_stream.bin",
     "uplink_status_stream.expected.json",
+    "command_report.bin",
+    "command_report.expected.json",
+    "command_report_stream.bin",
+    "command_report_stream.expected.json",
 )
-WRITERS = "FspTimeReplyTest.WritesConformanceVectors:FspUplinkStatusTest.WritesConformanceVectors"
+WRITERS = "*.WritesConformanceVectors"
 
 
-def test_e2_e3_vectors_are_the_firmware_encoders_output(
+def test_e2_e3_e4_vectors_are_the_firmware_encoders_output(
     fresh_clone: Project, sitl_build, vectors_dir: Path, tmp_path: Path
 ) -> None:
     if shutil.which("clang") is None:

@@ -44,7 +44,10 @@ state_packets = st.builds(
     mavlink=st.none() | st.binary(min_size=64, max_size=64),
 )
 
-command_packets = st.builds(CommandPacket, rc=tuples(i16, 6), seq=u24, tx_time_us=u32)
+command_packets = st.builds(
+    CommandPacket, rc=tuples(i16, 6), seq=u24, tx_time_us=u32, at_us=st.none() | u32
+)
+"""Immediate and timed (E4) commands."""
 
 corruption = st.one_of(
     st.tuples(st.just("flip"), st.integers(0, 10_000), st.integers(1, 255)),

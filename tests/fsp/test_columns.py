@@ -43,7 +43,7 @@ from wftool.fsp.columns import StateColumns, decode_columns  # noqa: E402
 
 STATE_VECTORS = [
     "state_base", "state_e1_wrap", "state_mavlink", "state_damaged", "time_reply_stream",
-    "uplink_status_stream",
+    "uplink_status_stream", "command_report_stream",
 ]  # fmt: skip
 PERIOD = 953
 

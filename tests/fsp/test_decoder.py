@@ -7,8 +7,9 @@ import tracemalloc
 
 import pytest
 
-from wftool.fsp import SensorFrame, StateDecoder, StatePacket
-from wftool.fsp.encoder import encode_state
+from wftool.fsp import CommandOutcome, CommandReport, SensorFrame, StateDecoder, StatePacket
+from wftool.fsp.decoder import COMMAND_REPORTS_KEPT
+from wftool.fsp.encoder import encode_command_report, encode_state
 
 PERIOD = 953
 
@@ -200,3 +201,17 @@ def test_the_chunk_cut_by_joining_is_told_apart():
     decoder.resync()
     decoder.feed(wire[5:] + b"\x02\x07\x00", 1.3)  # the cut chunk, then the same garbage
     assert sum(decoder.joined.values()) == 2 and sum(decoder.stats.rejected.values()) == 4
+
+
+def test_command_reports_are_kept_until_taken_and_no_more_than_a_bound():
+    report = CommandReport(7, 0, 1_000_500, 1_000_600, CommandOutcome.ON_TIME, 0, (1,) * 6)
+    decoder = StateDecoder()
+    decoder.feed(encode_command_report(report))
+    [before] = decoder.take_command_reports()
+    assert before.event_time_us is None  # no state packet to place its times against yet
+    decoder.feed(packet_at(0, 1_000_000))
+    wire = encode_command_report(report) * (COMMAND_REPORTS_KEPT + 10)
+    decoder.feed(wire)
+    kept = decoder.take_command_reports()
+    assert len(kept) == COMMAND_REPORTS_KEPT and decoder.stats.command_reports == len(kept) + 11
+    assert kept[0].event_time_us == 1_000_600 and kept[0].at_time_us == 1_000_500

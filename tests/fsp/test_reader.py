@@ -10,9 +10,10 @@ from collections.abc import Iterator
 
 import pytest
 
-from tests.fsp.test_decoder import stream
-from wftool.errors import PortError
-from wftool.fsp import CommandDecoder, FspReader, StateDecoder
+from tests.fsp.test_decoder import PERIOD, stream
+from tests.fsp.test_timed import locked_decoder, obc_of
+from wftool.errors import ClockError, PortError, UsageError
+from wftool.fsp import CommandDecoder, FspPort, FspReader, StateDecoder, encode_command
 from wftool.fsp.packets import TimeReply
 from wftool.fsp.twoway import RoundTripRejection
 
@@ -124,3 +125,34 @@ def test_the_pulse_range_ends_are_sent():
         reader.send_command((750, 2250, 750, 2250, 750, 2250))
         commands = received.feed(reader.port.read(100))
     assert [c.rc for c in commands] == [(750, 2250, 750, 2250, 750, 2250)]
+
+
+def test_a_timed_command_goes_out_for_the_fc_time_of_its_obc_instant():
+    received = CommandDecoder()
+    decoder = locked_decoder()
+    first_tx = 1_000_000 + PERIOD + 100
+    with FspReader("loop://", decoder=decoder) as reader:
+        sent = reader.send_command(NEUTRAL, now=107.0, at=obc_of(9_000_000, first_tx))
+        reader.send_command(NEUTRAL, now=107.001)
+        commands = received.feed(reader.port.read(100))
+    assert sent.at_us is not None and abs(sent.at_us - 9_000_000) <= 1
+    assert [(c.seq, c.at_us) for c in commands] == [(0, sent.at_us), (1, None)]
+    assert len(encode_command(sent)) == 30  # 28 bytes, COBS and the delimiter
+
+
+def test_no_timed_command_leaves_before_the_clock_locks():
+    received = CommandDecoder()
+    with FspReader("loop://") as reader:
+        with pytest.raises(ClockError, match="not locked"):
+            reader.send_command(NEUTRAL, now=1.0, at=1.005)
+        assert reader.port.read(100) == b""  # nothing sent, nothing counted
+        assert reader.send_command(NEUTRAL, now=1.01).seq == 0
+        assert [c.at_us for c in received.feed(reader.port.read(100))] == [None]
+
+
+def test_a_port_alone_needs_a_decoder_for_a_timed_command():
+    with FspPort("loop://") as port:
+        with pytest.raises(UsageError, match="decoder"):
+            port.send_command(NEUTRAL, at=1.0)
+        packet = port.send_command(NEUTRAL, now=107.0, at=107.5, decoder=locked_decoder())
+        assert packet.at_us is not None

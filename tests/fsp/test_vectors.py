@@ -12,6 +12,7 @@ import pytest
 from wftool.fsp import CommandDecoder, CommandPacket, SensorFrame, StateDecoder, StatePacket
 from wftool.fsp.encoder import (
     encode_command,
+    encode_command_report,
     encode_state,
     encode_time_reply,
     encode_uplink_status,
@@ -23,11 +24,15 @@ from wftool.fsp.framing import (
     Rejection,
 )
 from wftool.fsp.packets import (
+    COMMAND_REPORT_LENGTH,
     TIME_REPLY_LENGTH,
     UPLINK_STATUS_LENGTH,
+    CommandOutcome,
+    CommandReport,
     TimeReply,
     UplinkFlag,
     UplinkStatus,
+    parse_command_report,
     parse_state,
     parse_time_reply,
     parse_uplink_status,
@@ -147,8 +152,21 @@ STATUS_FIELDS = (
     "command_seq", "tx_time_us", "accepted", "stale", "timeouts", "rejected", "timeout_ms",
     "flags", "failsafe_phase", "timed_out_us",
 )  # fmt: skip
-MIXED_VECTORS = ["time_reply", "time_reply_stream", "uplink_status", "uplink_status_stream"]
-"""Written by the firmware's own C encoder: E2 time replies (§10), E3 uplink statuses (§12)."""
+MIXED_VECTORS = [
+    "time_reply", "time_reply_stream", "uplink_status", "uplink_status_stream",
+    "command_report", "command_report_stream",
+]  # fmt: skip
+"""Written by the firmware's own C encoder: E2 time replies (§10), E3 uplink statuses (§12),
+E4 command reports (§13)."""
+REPORT_FIELDS = (
+    "command_seq", "command_tx_time_us", "at_us", "event_us", "outcome", "queued", "counts",
+)  # fmt: skip
+
+
+def report_as_json(report: CommandReport) -> dict[str, Any]:
+    fields = {name: getattr(report, name) for name in REPORT_FIELDS}
+    fields["counts"] = list(report.counts)
+    return {"type": "command_report", "version": report.version} | fields
 
 
 def status_as_json(status: UplinkStatus) -> dict[str, Any]:
@@ -166,6 +184,8 @@ def decode_mixed(wire: bytes) -> list[dict[str, Any]]:
             return reply_as_json(parse_time_reply(payload))
         if len(payload) == UPLINK_STATUS_LENGTH:
             return status_as_json(parse_uplink_status(payload))
+        if len(payload) == COMMAND_REPORT_LENGTH:
+            return report_as_json(parse_command_report(payload))
         return {"type": "state"} | packet_as_json(parse_state(payload))
 
     deframer = Deframer(STATE_E2_VERSIONS)
@@ -180,6 +200,9 @@ def encode_mixed(packets: list[dict[str, Any]]) -> bytes:
             return encode_time_reply(TimeReply(*(p[name] for name in REPLY_FIELDS)))
         if p["type"] == "uplink_status":
             return encode_uplink_status(UplinkStatus(*(p[name] for name in STATUS_FIELDS)))
+        if p["type"] == "command_report":
+            values = {**p, "counts": tuple(p["counts"])}
+            return encode_command_report(CommandReport(*(values[name] for name in REPORT_FIELDS)))
         return encode_state(packet_from_json({k: v for k, v in p.items() if k != "type"}))
 
     return b"".join(map(encode, packets))
@@ -247,3 +270,80 @@ def test_plain_v5_decoder_rejects_each_uplink_status_as_one_chunk(vectors_dir: P
     assert len(states) == plain["state_packets"]
     assert sum(deframer.rejected.values()) == deframer.rejected[Rejection.LENGTH]
     assert deframer.rejected[Rejection.LENGTH] == plain["rejected_chunks"]
+
+
+# -- E4 timed commands and command reports (spec §13) ---------------------------------------
+
+
+def test_timed_command_vector_round_trip(vectors_dir: Path) -> None:
+    wire, expected = load(vectors_dir, "timed_command")
+    decoder = CommandDecoder()
+    decoded = [
+        {"version": 5, "seq": c.seq, "tx_time_us": c.tx_time_us, "rc": list(c.rc),
+         "at_us": c.at_us}
+        for c in decoder.feed(wire)
+    ]  # fmt: skip
+    assert decoded == expected["packets"]
+    assert not any(decoder.rejected.values())
+    rebuilt = [
+        CommandPacket(tuple(p["rc"]), p["seq"], p["tx_time_us"], p["at_us"])
+        for p in expected["packets"]
+    ]
+    assert b"".join(encode_command(c) for c in rebuilt) == wire
+
+
+def test_an_fc_without_e4_rejects_each_timed_command_as_one_chunk(vectors_dir: Path) -> None:
+    """What the firmware before E4 (or built without it) does: no command, one chunk each."""
+    wire, expected = load(vectors_dir, "timed_command")
+    decoder = CommandDecoder(timed=False)
+    plain = expected["plain_v5"]
+    assert len(decoder.feed(wire)) == plain["commands"] == 0
+    assert sum(decoder.rejected.values()) == decoder.rejected[Rejection.LENGTH]
+    assert decoder.rejected[Rejection.LENGTH] == plain["rejected_chunks"]
+    immediate, _ = load(vectors_dir, "command")
+    assert len(decoder.feed(immediate)) == 8  # and takes the immediate ones as ever
+
+
+def test_state_decoder_takes_command_reports_between_the_packets(vectors_dir: Path) -> None:
+    wire, expected = load(vectors_dir, "command_report_stream")
+    decoder = StateDecoder()
+    packets = decoder.feed(wire)
+    reports = decoder.take_command_reports()
+    assert [report_as_json(r) for r in reports] == [
+        p for p in expected["packets"] if p["type"] == "command_report"
+    ]
+    assert len(packets) == 8 and decoder.stats.errors == 0
+    assert decoder.stats.command_reports == 3
+    assert decoder.take_command_reports() == []  # taken once
+    on_time, late, refused = reports
+    assert (on_time.outcome, late.outcome, refused.outcome) == (
+        CommandOutcome.ON_TIME, CommandOutcome.LATE, CommandOutcome.TOO_FAR,
+    )  # fmt: skip
+    assert (on_time.delay_us, late.delay_us, refused.delay_us) == (50, 2375, None)
+    # the FC times unwrapped into the stream's: the event beside the state packet before it
+    for report in reports:
+        assert report.event_time_us is not None and report.at_time_us is not None
+        assert report.event_time_us % 2**32 == report.event_us
+        assert report.at_time_us - report.event_time_us == report.at_us - report.event_us
+
+
+def test_plain_v5_decoder_rejects_each_command_report_as_one_chunk(vectors_dir: Path) -> None:
+    wire, expected = load(vectors_dir, "command_report_stream")
+    deframer = Deframer(STATE_VERSIONS)
+    states = [packet_as_json(parse_state(p)) for p in deframer.feed(wire)]
+    plain = expected["plain_v5"]
+    assert len(states) == plain["state_packets"]
+    assert deframer.rejected[Rejection.LENGTH] == plain["rejected_chunks"]
+    assert sum(deframer.rejected.values()) == plain["rejected_chunks"]
+
+
+def test_the_reference_vectors_decode_as_before(vectors_dir: Path) -> None:
+    """E4 changes nothing a stream without timed commands carries: every vector of the
+    original contract decodes with no command report and no new rejection."""
+    for name in [*STATE_VECTORS, "state_damaged"]:
+        wire, _ = load(vectors_dir, name)
+        decoder = StateDecoder()
+        decoder.feed(wire)
+        assert decoder.stats.command_reports == 0, name
+    wire, _ = load(vectors_dir, "command")
+    assert all(c.at_us is None for c in CommandDecoder().feed(wire))

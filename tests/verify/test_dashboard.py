@@ -4,7 +4,8 @@ from __future__ import annotations
 
 from rich.console import Console
 
-from tests.verify.test_monitor import feed_fc_uplink, feed_steady, feed_two_way
+from tests.verify.test_monitor import feed_fc_uplink, feed_steady, feed_timed, feed_two_way
+from wftool.fsp import CommandOutcome
 from wftool.verify.criteria import Criteria, judge
 from wftool.verify.dashboard import render
 from wftool.verify.monitor import StreamMonitor
@@ -94,3 +95,15 @@ def test_an_fc_uplink_status_that_stopped_coming_shows_its_age():
     console.print(render(monitor.summary(read_at + 3.0), None, None))
     assert "as of 3.0 s ago" in fc_uplink_lines(console.export_text())
     assert "s ago" not in fc_uplink_lines(screen(monitor))
+
+
+def test_dashboard_shows_when_timed_commands_acted():
+    monitor = StreamMonitor("socket://127.0.0.1:5762")
+    monitor.connected(0.0)
+    assert "timed" not in screen(monitor)
+    on_time = [10] * 10 + [60] * 80 + [120] * 10
+    feed_timed(monitor, [*on_time, 4000], [CommandOutcome.ON_TIME] * 100 + [CommandOutcome.LATE])
+    text = screen(monitor)
+    line = next(line for line in text.splitlines() if "timed 101 reports" in line)
+    assert "P1 10 µs  P50 60 µs  P99 120 µs  (P99−P1 110 µs, 100 on time)" in line
+    assert "late 1  refused 0  dropped 0  reports lost 0  latest 4.000 ms" in text

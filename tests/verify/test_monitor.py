@@ -8,8 +8,8 @@ import pytest
 
 from tests.fsp.test_decoder import frame, stream
 from tests.fsp.test_twoway import RC, Link
-from wftool.fsp import CommandPacket, StatePacket, UplinkFlag
-from wftool.fsp.encoder import encode_state
+from wftool.fsp import CommandOutcome, CommandPacket, CommandReport, StatePacket, UplinkFlag
+from wftool.fsp.encoder import encode_command_report, encode_state
 from wftool.verify.criteria import Criteria, judge
 from wftool.verify.monitor import HealthSampler, IntervalHistogram, StreamMonitor
 from wftool.verify.uplink import UplinkTracker, pattern_command
@@ -219,3 +219,46 @@ def test_no_uplink_status_before_the_fc_sends_one():
     assert summary.fc_uplink is None and summary.fc_uplink_age_s is None
     assert summary.as_json()["fc_uplink"] is None
     assert summary.health(None, 1.0).uplink is None
+
+
+def feed_timed(monitor: StreamMonitor, delays_us: list[int], outcomes: list[int]) -> None:
+    """A stream with one command report after each state packet: the FC applied a timed
+    command `delay` µs after the time it asked for (`outcome` per report)."""
+    counts = [0] * len(CommandOutcome)
+    t = 0.0
+    for index, (delay, outcome) in enumerate(zip(delays_us, outcomes, strict=True)):
+        t = (index + 1) * PACKET_S
+        counts[outcome] += 1
+        tx_us = 1_000_000 + 2 * index * 953 + 953 + 100
+        at_us = tx_us - 500
+        report = CommandReport(
+            index,
+            0,
+            at_us,
+            at_us + delay,
+            outcome,
+            0,
+            tuple(counts),  # type: ignore[arg-type]
+        )
+        monitor.feed(stream([index], e1=True) + encode_command_report(report), t)
+
+
+def test_the_fc_reports_on_timed_commands_are_summed_up():
+    monitor = StreamMonitor("socket://127.0.0.1:5762")
+    monitor.connected(0.0)
+    assert monitor.summary().timed is None  # no timed commands, no figures
+    delays = [(17 * k) % 125 for k in range(200)] + [3000, 0, 0]
+    outcomes = [CommandOutcome.ON_TIME] * 200 + [
+        CommandOutcome.LATE, CommandOutcome.TOO_FAR, CommandOutcome.SUPERSEDED,
+    ]  # fmt: skip
+    feed_timed(monitor, delays, outcomes)
+    timed = monitor.summary().timed
+    assert timed is not None
+    assert (timed.reports, timed.late, timed.refused, timed.dropped) == (203, 1, 1, 1)
+    assert timed.apply is not None and timed.apply.count == 200
+    assert timed.apply.p1_us == 0 and 120 <= timed.apply.p99_us < 125  # the late one apart
+    assert timed.latest_us == 3000 and timed.lost_reports == 0
+    data = json.loads(json.dumps(monitor.summary().as_json()))
+    assert data["timed"]["apply"]["spread_us"] == timed.apply.spread_us
+    assert data["timed"]["outcomes"]["ON_TIME"] == 200
+    assert judge(monitor.summary(), Criteria()).passed  # reported, never judged

@@ -177,3 +177,37 @@ def test_what_the_fc_made_of_the_commands_is_shown_recorded_and_replayed(
     assert accepted == sorted(accepted) and accepted[-1] <= fc["accepted"]
     code, replayed, _ = verify_json(capsys, "replay", str(recording))
     assert code == 0 and replayed["fc_uplink"] == fc
+
+
+def test_sitl_verify_with_timed_commands_reports_when_they_acted(
+    sitl_binary: Path, capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    """`--uplink-lead`: the pattern goes out as timed commands once the clock locks; the FC's
+    reports say each acted within one PID period of its time; a recording replays to the same
+    figures (they come from the FC's reports in the stream)."""
+    recording = tmp_path / "run.mcap"
+    code, live, err = verify_json(
+        capsys, "sitl", "--binary", str(sitl_binary), "--workdir", str(tmp_path / "fc"),
+        "--port-base", str(free_port_base()), "--no-motion", "--time-reply", "--uplink",
+        "--uplink-rate", "100", "--uplink-lead", "5", "--verify", "12", "--record", str(recording),
+    )  # fmt: skip
+    assert code == 0, err
+    timed = live["timed"]
+    applied = timed["apply"]
+    assert applied["count"] >= 200  # ~1 s of commands went out immediate, before the lock
+    assert applied["p1_us"] >= 0 and applied["p99_us"] < 125  # one PID period at 8 kHz
+    assert timed["outcomes"]["ON_TIME"] >= 0.9 * timed["reports"]
+    assert live["uplink"]["steps_echoed"] >= 0.9 * live["uplink"]["steps_sent"]
+    code, replayed, _ = verify_json(capsys, "replay", str(recording))
+    assert code == 0 and replayed["timed"] == timed
+
+
+def test_an_uplink_lead_out_of_range_is_one_line(capsys: pytest.CaptureFixture[str]) -> None:
+    for lead in ("-1", "200", "nan"):
+        code, _, err = run_cli(
+            capsys, "verify", "--stream", "--port", "loop://", "--uplink", "--uplink-lead", lead
+        )
+        assert code == 2 and "--uplink-lead must be 0 to 150 ms" in err, err
+        assert "Traceback" not in err
+    code, _, err = run_cli(capsys, "verify", "--stream", "--port", "loop://", "--uplink-lead", "5")
+    assert code == 2 and "send the pattern too" in err, err

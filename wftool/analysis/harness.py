@@ -16,7 +16,7 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from wftool.analysis.sources import UNIT_TEST_FLAGS, FilterSources
+from wftool.analysis.sources import UNIT_TEST_FLAGS, UnitTestSources
 from wftool.errors import BuildError, UsageError
 
 if TYPE_CHECKING:
@@ -120,7 +120,7 @@ PRESETS = {
 """The paper's defaults and single-setting alternatives to compare them with."""
 
 
-def compile_host_library(sources: FilterSources, out_dir: Path, cc: str = "gcc") -> Path:
+def compile_host_library(sources: UnitTestSources, out_dir: Path, cc: str = "gcc") -> Path:
     """Build the harness and the filter's sources into OUT_DIR/libaccrpmharness.so."""
     compiler = shutil.which(cc)
     if compiler is None:
@@ -142,7 +142,7 @@ def compile_host_library(sources: FilterSources, out_dir: Path, cc: str = "gcc")
     return library
 
 
-def host_flags(sources: FilterSources) -> list[str]:
+def host_flags(sources: UnitTestSources) -> list[str]:
     """The host compiler's flags without the include directories."""
     return [*HOST_FLAGS, *UNIT_TEST_FLAGS, *(f"-D{define}" for define in sources.defines)]
 
@@ -153,7 +153,7 @@ def run_compiler(command: list[str]) -> None:
     if proc.returncode != 0:
         errors = [line for line in proc.stderr.splitlines() if "error" in line]
         reason = (errors or proc.stderr.strip().splitlines() or ["failed"])[0]
-        raise HarnessError(f"compiling the filter harness failed: {reason}")
+        raise HarnessError(f"compiling the harness failed: {reason}")
 
 
 class HostHarness:

@@ -1,5 +1,6 @@
-"""The filter's cost on the SPEEDYBEEF7V3: the series' code built for the Cortex-M7 and run in
-Unicorn, counting the instructions the firmware's functions execute (docs/analysis.md).
+"""The series' code on the SPEEDYBEEF7V3's core: built for the Cortex-M7 and run in Unicorn,
+counting the instructions the firmware's functions execute (the accelerometer filter, the
+timed-command queue; docs/analysis.md).
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from wftool.analysis.harness import (
     HarnessError,
     run_compiler,
 )
-from wftool.analysis.sources import FilterSources
+from wftool.analysis.sources import UnitTestSources
 
 if TYPE_CHECKING:
     import numpy as np
@@ -90,12 +91,20 @@ class CallCost:
     cycles: int
 
 
-def build_image(sources: FilterSources, out_dir: Path, gcc: Path) -> M7Image:
-    """Compile and link the harness and the filter for the Cortex-M7 into OUT_DIR."""
+def build_image(
+    sources: UnitTestSources,
+    out_dir: Path,
+    gcc: Path,
+    harness: Path = PORTABLE_SOURCE,
+    entry: str = "accHarnessSetup",
+) -> M7Image:
+    """Compile and link `harness` (its entry point `entry`) and the firmware's `sources` for
+    the Cortex-M7 into OUT_DIR (by default the filter's harness)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     tool = str(gcc)[: -len("gcc")]
+    name = harness.stem.replace("_", "")
     objects = []
-    for source in (*sources.sources, PORTABLE_SOURCE):
+    for source in (*sources.sources, harness):
         obj = out_dir / f"{source.stem}.o"
         run_compiler(
             [
@@ -110,13 +119,14 @@ def build_image(sources: FilterSources, out_dir: Path, gcc: Path) -> M7Image:
             ]
         )
         objects.append(str(obj))
-    elf = out_dir / "accrpmharness-m7.elf"
+    elf = out_dir / f"{name}-m7.elf"
     run_compiler(
         [
             str(gcc),
             *M7_ARCH_FLAGS,
             "-nostartfiles",
             "--specs=nano.specs",
+            f"-Wl,--entry={entry}",
             f"-T{LINKER_SCRIPT}",
             "-o",
             str(elf),
@@ -126,7 +136,7 @@ def build_image(sources: FilterSources, out_dir: Path, gcc: Path) -> M7Image:
             "-lnosys",
         ]
     )
-    binary = out_dir / "accrpmharness-m7.bin"
+    binary = out_dir / f"{name}-m7.bin"
     _tool(f"{tool}objcopy", "-O", "binary", str(elf), str(binary))
     symbols = {}
     for line in _tool(f"{tool}nm", "-S", "--defined-only", str(elf)).splitlines():
@@ -191,6 +201,19 @@ class M7Harness:
         from unicorn.arm_const import UC_ARM_REG_R0
 
         return self._uc.reg_read(UC_ARM_REG_R0)
+
+    def address(self, symbol: str) -> int:
+        """Where `symbol` (a function or an object of the image) lies."""
+        try:
+            return self.image.symbols[symbol][0]
+        except KeyError:
+            raise HarnessError(f"the Cortex-M7 image has no symbol {symbol}") from None
+
+    def read(self, address: int, size: int) -> bytes:
+        return bytes(self._uc.mem_read(address, size))
+
+    def write(self, address: int, data: bytes) -> None:
+        self._uc.mem_write(address, data)
 
     def setup(self, settings: FilterSettings, sample_rate_hz: int, motor_count: int) -> bool:
         """accRpmFilterSetup() on the emulated filter; returns whether it is active."""

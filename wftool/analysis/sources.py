@@ -1,6 +1,6 @@
-"""The patched Betaflight sources the filter harness compiles (as the series' unit test
-lists them), and the compilers it uses: the one module of `wftool.analysis` that talks to
-the firmware build package.
+"""The patched Betaflight sources the harnesses compile (as the series' unit tests list them:
+the accelerometer filter's, the timed-command queue's), and the compilers they use: the one
+module of `wftool.analysis` that talks to the firmware build package.
 """
 
 from __future__ import annotations
@@ -14,9 +14,11 @@ from wftool.errors import UsageError
 from wftool.firmware.git import git_out
 
 FILTER_SOURCE = "src/main/flight/acc_rpm_filter.c"
+QUEUE_SOURCE = "src/main/io/fsp_queue.c"
 UNIT_TEST_MAKEFILE = "src/test/Makefile"
 UNIT_TEST_DIR = "src/test/unit"
 UNIT_TEST_NAME = "acc_rpm_filter_unittest"
+QUEUE_UNIT_TEST_NAME = "fsp_queue_unittest"
 UNIT_TEST_FLAGS = ("-DUNIT_TEST", "-D_GNU_SOURCE", "-std=gnu99")
 """src/test/Makefile's COMMON_FLAGS and C_FLAGS defines and language (its -O0, warnings,
 coverage and gtest flags are left out: the harness compiles with -O2)."""
@@ -28,18 +30,21 @@ _MAKE_ASSIGNMENT = re.compile(r"^(?P<name>[A-Za-z_][\w.]*)\s*(?P<op>:=|\+=|\?=|=
 
 
 class SourcesError(UsageError):
-    """The Betaflight tree does not hold the filter, or the harness sources cannot be read."""
+    """The Betaflight tree does not hold the series' code, or the harness sources cannot be
+    read."""
 
 
 @dataclass(frozen=True)
-class FilterSources:
-    """Everything a compiler needs to build the filter from one tree."""
+class UnitTestSources:
+    """Everything a compiler needs to build what one of the series' unit tests compiles
+    (the filter, the queue) from one tree."""
 
     tree: Path
     revision: str
     """The tree's HEAD commit, with "-dirty" when it has uncommitted changes."""
     sources: tuple[Path, ...]
-    """The C files the series' unit test compiles (acc_rpm_filter.c, filter.c, maths.c)."""
+    """The C files the unit test compiles (the filter's: acc_rpm_filter.c, filter.c,
+    maths.c)."""
     defines: tuple[str, ...]
     """That unit test's extra defines (e.g. USE_ACC_RPM_FILTER=)."""
     include_dirs: tuple[Path, ...]
@@ -76,21 +81,33 @@ def tree_text(tree: Path, path: str) -> str:
     return git_out(["show", f"HEAD:{path}"], tree) + "\n"
 
 
-def filter_sources(tree: Path, scratch: Path) -> FilterSources:
-    """The filter's sources in TREE; the unit tests' headers are copied into SCRATCH."""
-    if not (tree / FILTER_SOURCE).is_file():
+def filter_sources(tree: Path, scratch: Path) -> UnitTestSources:
+    """The accelerometer filter's sources in TREE (see `unit_test_sources`)."""
+    return unit_test_sources(tree, scratch, UNIT_TEST_NAME, FILTER_SOURCE)
+
+
+def queue_sources(tree: Path, scratch: Path) -> UnitTestSources:
+    """The timed-command queue's sources in TREE, with the freshness gate and the MSP
+    receiver it hands commands to (see `unit_test_sources`)."""
+    return unit_test_sources(tree, scratch, QUEUE_UNIT_TEST_NAME, QUEUE_SOURCE)
+
+
+def unit_test_sources(tree: Path, scratch: Path, unit_test: str, required: str) -> UnitTestSources:
+    """What the series' unit test `unit_test` compiles in TREE, which must hold `required`;
+    the unit tests' headers are copied into SCRATCH."""
+    if not (tree / required).is_file():
         raise SourcesError(
-            f"{tree} holds no {FILTER_SOURCE}: not a Betaflight tree with the patch series "
+            f"{tree} holds no {required}: not a Betaflight tree with the patch series "
             "(`wftool patches apply`)"
         )
     variables = make_variables(tree_text(tree, UNIT_TEST_MAKEFILE))
-    listed = variables.get(f"{UNIT_TEST_NAME}_SRC")
+    listed = variables.get(f"{unit_test}_SRC")
     if not listed:
-        raise SourcesError(f"{tree}/{UNIT_TEST_MAKEFILE} lists no {UNIT_TEST_NAME}_SRC")
+        raise SourcesError(f"{tree}/{UNIT_TEST_MAKEFILE} lists no {unit_test}_SRC")
     sources = tuple(tree / "src/main" / word.replace("$(USER_DIR)/", "") for word in listed)
     missing = [str(path) for path in sources if not path.is_file()]
     if missing:
-        raise SourcesError(f"{UNIT_TEST_NAME}_SRC names missing files: {', '.join(missing)}")
+        raise SourcesError(f"{unit_test}_SRC names missing files: {', '.join(missing)}")
     headers = scratch / "unit-test-headers"
     for name in _unit_test_headers(tree):
         destination = headers / name
@@ -99,22 +116,22 @@ def filter_sources(tree: Path, scratch: Path) -> FilterSources:
     digest = hashlib.sha256()
     for path in sources:
         digest.update(f"{path.relative_to(tree)}\n".encode() + path.read_bytes())
-    return FilterSources(
+    return UnitTestSources(
         tree=tree,
         revision=_revision(tree),
         sources=sources,
-        defines=tuple(variables.get(f"{UNIT_TEST_NAME}_DEFINES", [])),
+        defines=tuple(variables.get(f"{unit_test}_DEFINES", [])),
         include_dirs=(headers, tree / "src/main", tree / "lib/main/MAVLink"),
         sha256=digest.hexdigest(),
     )
 
 
 def patched_tree(project_dir: Path | None) -> Path:
-    """betaflight/ of the project, holding the filter: fetched and patched when it is not.
+    """betaflight/ of the project, holding the series: fetched and patched when it is not.
 
     A tree that already holds the series is used as it is, uncommitted edits included (the
-    report names the revision and marks it dirty), so a filter change can be measured before
-    it is exported; a pristine or outdated tree gets the series applied, as `wftool build`.
+    report names the revision and marks it dirty), so a change can be measured before it is
+    exported; a pristine or outdated tree gets the series applied, as `wftool build`.
     """
     from wftool.firmware import find_project, patches, tree
     from wftool.firmware.project import exclusive

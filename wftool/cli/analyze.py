@@ -196,6 +196,43 @@ def timing_command(
     out.print(shown(f"wrote {', '.join(str(path) for path in written)}"))
 
 
+@analyze_group.command(
+    "timed", short_help="What timed commands (E4) cost the SPEEDYBEEF7V3's Cortex-M7."
+)
+@project_option
+def timed_command(project_dir: Path | None) -> None:
+    """What timed commands (E4) cost the SPEEDYBEEF7V3: the series' queue code built with
+    Betaflight's F7 flags and run on an emulated Cortex-M7, per PID iteration and per
+    command, and the queue's RAM."""
+    require("analysis", *EMULATOR, what="analyze timed")
+    from wftool.analysis import timedcost
+
+    cost = timedcost.run(project_dir, progress=lambda message: err.print(shown(message, "dim")))
+    print_table(
+        [
+            {
+                "where": case.where,
+                "what": case.name,
+                "instructions": f"{case.instructions}",
+                "cycles": f"{case.cycles}",
+                "µs at 216 MHz": f"{case.us:.3f}",
+                **{
+                    f"% of a {rate:g} Hz loop": f"{case.percent_of(rate):.2f}"
+                    for rate in timedcost.PID_RATES_HZ
+                },
+            }
+            for case in cost.cases
+        ]
+    )
+    check = cost.check
+    out.print(
+        f"queue RAM: {cost.queue_bytes} bytes (sizeof(fspQueue_t)); cycles: one per executed "
+        f"instruction at {int(check['clock_hz']) / 1e6:g} MHz; {check['function']} executed "
+        f"{check['executed_instructions']} instructions, its disassembly has "
+        f"{check['disassembly_instructions']}"
+    )
+
+
 def print_table(rows: list[dict[str, str]], notes: Sequence[str] = (), left: int = 2) -> None:
     """Rows (column -> text) as a table on stdout, the first `left` columns left-aligned
     and the rest (numbers) right-aligned; then the notes."""

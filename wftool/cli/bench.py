@@ -13,12 +13,14 @@ from rich.console import Console
 from rich.table import Table
 
 from wftool.bench.build import bench_build
+from wftool.bench.command import IMMEDIATE, LEAD_S, TIMED, CommandBenchResult, Spread
 from wftool.bench.decode import STREAMS
 from wftool.cli.build import build_options, options_from, project_from
 from wftool.cli.sitl import rate_option
 from wftool.verify.monitor import IntervalSummary
 
 out = Console(highlight=False, width=None if sys.stdout.isatty() else 200)
+LEAD_MS = LEAD_S * 1e3
 ROS2_BYTES_PER_FRAME_GOAL = 94.0
 """The size goal of a ROS 2 recording: what the JSON format measured when it was set."""
 
@@ -298,6 +300,151 @@ def bench_latency(
     if result.time_reply:
         rejected = ", ".join(f"{k} {v}" for k, v in result.round_trip_rejected.items()) or "none"
         out.print(f"round trips: {result.round_trips:,}; not used: {rejected}")
+
+
+@bench_group.command("command")
+@click.option("--seconds", default=20.0, show_default=True, help="Commanding time per row.")
+@click.option(
+    "--rates",
+    default="100,500",
+    show_default=True,
+    help="Command rates (Hz), comma-separated: each runs immediate, then timed.",
+)
+@click.option(
+    "--lead-ms",
+    type=click.FloatRange(0.0, 40.0),
+    default=LEAD_MS,
+    show_default=True,
+    help="How far ahead of its time each timed command is sent.",
+)
+@click.option(
+    "--paper",
+    is_flag=True,
+    help="As the paper's board: a 3148 Hz PID loop, UARTs at their baud rates, "
+    "serial_update_rate_hz 1000.",
+)
+@sitl_options
+def bench_command(
+    seconds: float, rates: str, lead_ms: float, paper: bool, binary: Path | None,
+    project_dir: Path | None,
+) -> None:  # fmt: skip
+    """On the virtual FC, against its true clock: when commands act, immediate ones against
+    timed ones (E4, spec §13) sent a few ms ahead: the FC apply time − the intended time."""
+    from wftool.bench.command import run_command_bench
+    from wftool.cli.sitl import build_sitl
+    from wftool.sitl.process import SITL_BOARD, VirtualBoard
+
+    try:
+        values = [float(value) for value in rates.split(",")]
+    except ValueError:
+        raise click.BadParameter(f"expected numbers like 100,500: {rates!r}") from None
+    if not all(0 < value <= 1000 and math.isfinite(value) for value in values):
+        raise click.BadParameter(f"command rates must be above 0 and at most 1000 Hz: {rates!r}")
+    board, serial_rate = SITL_BOARD, None
+    if paper:
+        from wftool.analysis.setup import PAPER_BOARD, SERIAL_RATE_HZ
+
+        board = VirtualBoard(PAPER_BOARD.gyro_hz, PAPER_BOARD.gyro_clock_hz, True)
+        serial_rate = SERIAL_RATE_HZ
+    result = run_command_bench(
+        binary or build_sitl(project_dir), seconds, values, lead_ms / 1e3, board, serial_rate
+    )
+    pid = result.pid_period_us
+    out.print(
+        f"bench command: {seconds:g} s per row on the virtual FC (PID loop {1e6 / pid:.0f} Hz, "
+        f"{pid:.1f} µs; UARTs {'at their baud rates' if result.uart_pacing else 'as fast as TCP'}"
+        f"); timed commands mapped through the {'two-way' if result.two_way else 'one-way'} "
+        f"clock (± {result.clock_uncertainty_us:.0f} µs)"
+    )
+    spread = ("P1", "P50", "P99", "P99−P1", "max")
+    table = Table(title="FC apply time − intended time, µs (true clock)", box=None, pad_edge=False)
+    for column in ("command", "Hz", "lead ms", "sent", "applied", "late", "refused",
+                   "dropped", *spread):  # fmt: skip
+        table.add_column(column, justify="left" if column == "command" else "right")
+    for row in result.rows:
+        timed = row.mode == TIMED
+        table.add_row(
+            row.mode, f"{row.rate_hz:g}", f"{row.lead_ms:g}" if timed else "–",
+            f"{row.sent:,}", f"{row.applied:,}",
+            *((f"{row.late}", f"{row.refused}", f"{row.dropped}") if timed else ("–",) * 3),
+            *_spread(row.apply),
+        )  # fmt: skip
+    out.print(table)
+    own = Table(
+        title="timed, the FC's own account: applying PID iteration − FC time asked for, µs",
+        box=None,
+        pad_edge=False,
+    )
+    for column in ("command", "Hz", "on time", *spread, "late", "latest"):
+        own.add_column(column, justify="left" if column == "command" else "right")
+    seen = Table(
+        title=f"first frame whose RC shows the command − intended time, µs (frames every "
+        f"{result.frame_period_us:.0f} µs)",
+        box=None,
+        pad_edge=False,
+    )
+    for column in ("command", "Hz", *spread):
+        seen.add_column(column, justify="left" if column == "command" else "right")
+    for row in result.rows:
+        if row.mode == TIMED:
+            own.add_row(
+                row.mode, f"{row.rate_hz:g}", f"{row.asked.count if row.asked else 0:,}",
+                *_spread(row.asked), f"{row.late}",
+                "–" if row.latest_us is None else f"{row.latest_us:.0f}",
+            )  # fmt: skip
+        seen.add_row(row.mode, f"{row.rate_hz:g}", *_spread(row.seen))
+    out.print(own)
+    out.print(seen)
+    late = result.lateness
+    host = (
+        f"host lateness: {late.over_us[1000]} of {late.waits:,} FC instants reached over 1 ms "
+        f"late (worst {late.max_us / 1e3:.1f} ms), {result.reanchors} re-anchors"
+        if late is not None
+        else f"{result.reanchors} re-anchors"
+    )
+    unlocked = sum(row.unlocked for row in result.rows)
+    out.print(
+        f"{host}; timed commands not sent while the clock was unlocked: {unlocked}; "
+        f"stale (E3): {result.stale}; reports lost: {result.lost_reports}"
+    )
+    out.print(_command_note(result))
+
+
+def _spread(spread: Spread | None) -> tuple[str, ...]:
+    if spread is None:
+        return ("–",) * 5
+    return tuple(
+        f"{value:.0f}"
+        for value in (spread.p1_us, spread.p50_us, spread.p99_us, spread.spread_us, spread.max_us)
+    )
+
+
+def _command_note(result: CommandBenchResult) -> str:
+    """The closing note: P99−P1 per rate, immediate against timed, and the goal."""
+    pid = result.pid_period_us
+    parts, met, end_to_end = [], True, True
+    for rate in dict.fromkeys(row.rate_hz for row in result.rows):
+        rows = {row.mode: row for row in result.rows if row.rate_hz == rate}
+        immediate, timed = rows.get(IMMEDIATE), rows.get(TIMED)
+
+        def figure(spread: Spread | None) -> str:
+            return "–" if spread is None else f"{spread.spread_us:.0f}"
+
+        own = timed.asked if timed is not None else None
+        met &= own is not None and own.spread_us <= pid
+        true = timed.apply if timed is not None else None
+        end_to_end &= true is not None and true.spread_us <= pid
+        parts.append(
+            f"{rate:g} Hz: immediate {figure(immediate.apply if immediate else None)}, timed "
+            f"{figure(timed.apply if timed else None)} ({timed.late if timed else 0} late), "
+            f"on time by the FC's clock {figure(own)}"
+        )
+    return (
+        f"P99−P1 of the apply time, µs: {'; '.join(parts)}. Goal, timed ≤ one PID period "
+        f"({pid:.0f} µs): by the FC's clock {'met' if met else 'missed'}; end to end, with "
+        f"the OBC's clock mapping (± {result.clock_uncertainty_us:.0f} µs), "
+        f"{'met' if end_to_end else 'missed'}."
+    )
 
 
 def _quantiles(interval: IntervalSummary | None) -> str:

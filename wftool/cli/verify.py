@@ -26,7 +26,7 @@ from wftool.verify.dashboard import render
 from wftool.verify.foxglove import DEFAULT_HOST as FOXGLOVE_HOST
 from wftool.verify.foxglove import DEFAULT_PORT as FOXGLOVE_PORT
 from wftool.verify.foxglove import exposure_warning
-from wftool.verify.live import Commander, check_duration
+from wftool.verify.live import Commander, check_duration, check_uplink_lead
 from wftool.verify.session import (
     VerifyResult,
     VerifySession,
@@ -49,6 +49,12 @@ def _options(*options: Callable) -> Callable:
 
 def _duration(_ctx: click.Context, param: click.Parameter, value: float | None) -> float | None:
     return check_duration(value, param.opts[0])
+
+
+def _lead(_ctx: click.Context, param: click.Parameter, value: float | None) -> float | None:
+    if value is not None:
+        check_uplink_lead(value / 1e3, param.opts[0])
+    return value
 
 
 def _limit(_ctx: click.Context, param: click.Parameter, value: float) -> float:
@@ -90,6 +96,10 @@ run_options = _options(
     click.option("--uplink-rate", type=float, default=50.0, show_default=True,
                  callback=lambda _ctx, param, value: check_uplink_rate(value, param.opts[0]),
                  help=f"Commands per second (at most {RATE_HZ_MAX})."),
+    click.option("--uplink-lead", "uplink_lead_ms", type=float, metavar="MS",
+                 callback=_lead,
+                 help="Send the pattern as timed commands (E4), each to act MS after it is "
+                 "sent; the FC reports when each did [immediate commands]."),
     click.option("--record", "record_path", type=click.Path(path_type=Path),
                  help="Record the run (messages and raw bytes): a rosbag2 directory, or one "
                  "MCAP file if the path ends in .mcap. `wftool replay` reads either."),
@@ -148,6 +158,7 @@ def session_from(
     criteria: Criteria | None = None,
     uplink: bool,
     uplink_rate: float,
+    uplink_lead_ms: float | None,
     record_path: Path | None,
     record_format: str,
     csv_path: Path | None,
@@ -171,6 +182,7 @@ def session_from(
         criteria=criteria,
         expected_rate_hz=expected_rate,  # also kept in a recording, for replay to judge by
         uplink_rate_hz=uplink_rate if uplink else None,
+        uplink_lead_s=uplink_lead_ms / 1e3 if uplink_lead_ms is not None else None,
         record_path=record_path,
         csv_path=csv_path,
         clock=clock,

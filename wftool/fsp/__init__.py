@@ -16,6 +16,7 @@ from wftool.fsp.decoder import CommandDecoder, StateDecoder, StreamStats
 from wftool.fsp.encoder import (
     CommandSender,
     encode_command,
+    encode_command_report,
     encode_state,
     encode_time_reply,
     encode_uplink_status,
@@ -23,7 +24,9 @@ from wftool.fsp.encoder import (
 from wftool.fsp.estimators import ESTIMATORS, ONE_WAY_ESTIMATORS, make_estimator
 from wftool.fsp.framing import Rejection
 from wftool.fsp.packets import (
+    CommandOutcome,
     CommandPacket,
+    CommandReport,
     SensorFrame,
     StatePacket,
     TimeReply,
@@ -31,6 +34,7 @@ from wftool.fsp.packets import (
     UplinkStatus,
 )
 from wftool.fsp.reader import DEFAULT_BAUDRATE, FspPort, FspReader
+from wftool.fsp.timed import ReportBook, fc_time_us
 from wftool.fsp.twoway import (
     RoundTrip,
     RoundTripMatcher,
@@ -46,7 +50,9 @@ __all__ = [
     "ClockEstimator",
     "ClockState",
     "CommandDecoder",
+    "CommandOutcome",
     "CommandPacket",
+    "CommandReport",
     "CommandSender",
     "EnvelopeClockEstimator",
     "FcClock",
@@ -54,6 +60,7 @@ __all__ = [
     "FspReader",
     "KalmanClockEstimator",
     "Rejection",
+    "ReportBook",
     "RoundTrip",
     "RoundTripMatcher",
     "RoundTripObserver",
@@ -68,8 +75,10 @@ __all__ = [
     "UplinkFlag",
     "UplinkStatus",
     "encode_command",
+    "encode_command_report",
     "encode_state",
     "encode_time_reply",
     "encode_uplink_status",
+    "fc_time_us",
     "make_estimator",
 ]

@@ -35,6 +35,7 @@ from wftool.fsp.decoder import (
 )
 from wftool.fsp.framing import STATE_VERSIONS, STREAM_VERSIONS, Rejection, longest_chunk
 from wftool.fsp.packets import (
+    COMMAND_REPORT_LENGTH,
     DROPS_MODULUS,
     FRAME_LAYOUT,
     HEADER_LAYOUT,
@@ -61,6 +62,8 @@ _SCAN_BYTES = 1 << 20
 _SMALL = 16
 """A block of rows this small whose joint decode fails is decoded row by row."""
 _MAX_CHUNK = longest_chunk(STREAM_VERSIONS)
+_BETWEEN = (UPLINK_STATUS_LENGTH, COMMAND_REPORT_LENGTH)
+"""The packets between the state packets that are counted, not decoded into columns."""
 assert max(STATE_VERSIONS) < 254  # so every COBS encoding of a state packet is 1 byte longer
 
 
@@ -322,7 +325,7 @@ def _deframe(
 ) -> Iterator[tuple[np.ndarray, np.ndarray]]:
     """Blocks of accepted packets: (delimiter position of each, its record), in stream
     order within each packet length and scan block. Counts the rejections, and the uplink
-    statuses (E3) between the packets, as it goes.
+    statuses (E3) and command reports (E4) between the packets, as it goes.
 
     Mirrors `framing.Deframer` fed read by read: a chunk is dropped undecoded (LENGTH) when
     at the end of some read more than `_MAX_CHUNK` of it had arrived; a chunk that no
@@ -352,14 +355,16 @@ def _deframe(
             except cobs.DecodeError:
                 rejected[Rejection.COBS] += 1
                 continue
-            if len(payload) != UPLINK_STATUS_LENGTH:
+            if len(payload) not in _BETWEEN:
                 rejected[Rejection.LENGTH] += 1  # no other length can decode to a packet
-            elif payload[0] != STREAM_VERSIONS[UPLINK_STATUS_LENGTH]:
+            elif payload[0] != STREAM_VERSIONS[len(payload)]:
                 rejected[Rejection.VERSION] += 1
             elif crc8(payload[:-1]) != payload[-1]:
                 rejected[Rejection.CRC] += 1
-            else:
+            elif len(payload) == UPLINK_STATUS_LENGTH:
                 stats.uplink_statuses += 1
+            else:
+                stats.command_reports += 1
 
         for encoded_length, length in encoded.items():
             rows = np.flatnonzero(candidate & (lengths == encoded_length))

@@ -9,6 +9,7 @@ raises on input (loss, FC drops, wraps, resets, outliers: docs/design.md).
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 
@@ -24,21 +25,25 @@ from wftool.fsp.clock import (
 from wftool.fsp.estimators import make_estimator
 from wftool.fsp.framing import (
     COMMAND_VERSIONS,
+    IMMEDIATE_COMMAND_VERSIONS,
     STATE_E2_VERSIONS,
     STREAM_VERSIONS,
     Deframer,
     Rejection,
 )
 from wftool.fsp.packets import (
+    COMMAND_REPORT_LENGTH,
     DROPS_MODULUS,
     SEQ_MODULUS,
     STATE_LENGTH,
     TIME_REPLY_LENGTH,
     CommandPacket,
+    CommandReport,
     StatePacket,
     TimeReply,
     UplinkStatus,
     parse_command,
+    parse_command_report,
     parse_state,
     parse_time_reply,
     parse_uplink_status,
@@ -49,6 +54,8 @@ _SEQ_HALF = SEQ_MODULUS // 2
 _HALF_U32 = U32 // 2
 REPLY_PLACE_US = 1_000_000
 """A time reply's FC send time lies this close to the latest state packet's (spec §10)."""
+COMMAND_REPORTS_KEPT = 4096
+"""Command reports (E4) a decoder holds until they are taken: the newest ones."""
 
 
 JITTER_US = 1000
@@ -131,6 +138,8 @@ class StreamStats:
     """E2 time replies decoded (with E2 on; spec §10)."""
     uplink_statuses: int = 0
     """E3 uplink statuses decoded (spec §12)."""
+    command_reports: int = 0
+    """E4 command reports decoded (spec §13)."""
     outliers: int = 0
     """Packets that fit neither the stream before nor after them (`StatePacket.outlier`)."""
 
@@ -163,6 +172,9 @@ class StateDecoder:
         self.stats = StreamStats(rejected=self._deframer.rejected)
         self.uplink_status: UplinkStatus | None = None
         """The FC's newest uplink status (E3, spec §12); None before the first."""
+        self.command_reports: deque[CommandReport] = deque(maxlen=COMMAND_REPORTS_KEPT)
+        """The FC's reports on timed commands (E4, spec §13), oldest first, not taken yet
+        (`take_command_reports`); the oldest go once `COMMAND_REPORTS_KEPT` wait."""
         self._last: StatePacket | None = None
         self._suspect: StatePacket | None = None
         """The latest packet, if it did not follow `_last`: an outlier unless the next
@@ -185,6 +197,12 @@ class StateDecoder:
         """Of `stats.rejected`: the chunks cut by joining the stream mid-way, the one each
         connection began in (`join`, `resync`; a new decoder is joining)."""
         return self._deframer.joined
+
+    def take_command_reports(self) -> list[CommandReport]:
+        """The command reports (E4) decoded since the last call, oldest first."""
+        reports = list(self.command_reports)
+        self.command_reports.clear()
+        return reports
 
     def join(self) -> None:
         """A connection opens mid-stream: the bytes up to the next delimiter end a chunk
@@ -210,6 +228,8 @@ class StateDecoder:
                 packets += self._account(map(parse_state, payloads[start:index]), arrival_time)
                 if len(payload) == TIME_REPLY_LENGTH:
                     self._time_reply(parse_time_reply(payload), arrival_time)
+                elif len(payload) == COMMAND_REPORT_LENGTH:
+                    self._command_report(parse_command_report(payload), arrival_time)
                 else:
                     self._uplink_status(parse_uplink_status(payload), arrival_time)
                 start = index + 1
@@ -320,22 +340,39 @@ class StateDecoder:
             first.obc_time = self.clock.to_obc(first.time_us)
             second.obc_time = self.clock.to_obc(second.time_us)
 
+    def _placed(self, fc_time_us: int) -> int | None:
+        """An FC time (u32) sent just now, unwrapped against the latest state packet's send
+        time: None when it lies more than `REPLY_PLACE_US` from it (another FC epoch's) or
+        before any state packet."""
+        last = self._last
+        if last is None or last.time_us is None:
+            return None
+        ahead = (fc_time_us - last.tx_time_us) % U32
+        if ahead >= _HALF_U32:
+            ahead -= U32
+        return last.time_us + ahead if abs(ahead) <= REPLY_PLACE_US else None
+
+    def _command_report(self, report: CommandReport, arrival_time: float | None) -> None:
+        """Keep a report, its FC times unwrapped: the event against the latest state
+        packet's (it happened at most a queue's horizon before), the time asked for against
+        the event (by the signed difference, as the FC compares them)."""
+        self.stats.command_reports += 1
+        report.arrival_time = arrival_time
+        event = self._placed(report.event_us)
+        if event is not None:
+            report.event_time_us = event
+            asked = (report.at_us - report.event_us) % U32
+            report.at_time_us = event + (asked - U32 if asked >= _HALF_U32 else asked)
+        self.command_reports.append(report)
+
     def _uplink_status(self, status: UplinkStatus, arrival_time: float | None) -> None:
         """Keep the newest status, its FC times unwrapped against the latest state packet's
         when its send time lies within `REPLY_PLACE_US` of it (as a time reply's)."""
         self.stats.uplink_statuses += 1
         status.arrival_time = arrival_time
-        last = self._last
-        if last is not None and last.time_us is not None:
-            ahead = (status.tx_time_us - last.tx_time_us) % U32
-            if ahead >= _HALF_U32:
-                ahead -= U32
-            if abs(ahead) <= REPLY_PLACE_US:
-                status.sent_us = sent_us = last.time_us + ahead
-                if status.timeouts:  # before the status, within 2^31 µs
-                    status.timed_out_at_us = (
-                        sent_us - (status.tx_time_us - status.timed_out_us) % U32
-                    )
+        sent_us = status.sent_us = self._placed(status.tx_time_us)
+        if sent_us is not None and status.timeouts:  # before the status, within 2^31 µs
+            status.timed_out_at_us = sent_us - (status.tx_time_us - status.timed_out_us) % U32
         self.uplink_status = status
 
     def _time_reply(self, reply: TimeReply, arrival_time: float | None) -> None:
@@ -368,10 +405,12 @@ class StateDecoder:
 
 
 class CommandDecoder:
-    """Decodes the OBC → FC command stream: what the FC does, for tests and simulators."""
+    """Decodes the OBC → FC command stream: what the FC does, for tests and simulators.
+    `timed`: take E4 timed commands (spec §13), as the firmware does unless built without
+    them; without, each is a chunk of bad length."""
 
-    def __init__(self) -> None:
-        self._deframer = Deframer(COMMAND_VERSIONS)
+    def __init__(self, *, timed: bool = True) -> None:
+        self._deframer = Deframer(COMMAND_VERSIONS if timed else IMMEDIATE_COMMAND_VERSIONS)
         self.rejected = self._deframer.rejected
 
     def feed(self, data: bytes) -> list[CommandPacket]:

@@ -1,5 +1,5 @@
-"""Encoding FSP packets for the wire: the OBC's command uplink; state streams, time replies
-and uplink statuses for tests.
+"""Encoding FSP packets for the wire: the OBC's command uplink (immediate and timed); state
+streams, time replies, uplink statuses and command reports for tests.
 
 `CommandSender` is what an OBC program uses: it numbers commands (E1 `seq`) and stamps
 them with the OBC clock, so the FC side and logs can tell loss and latency.
@@ -16,12 +16,15 @@ from wftool.fsp.packets import (
     RC_CHANNELS,
     RC_PULSE_US,
     SEQ_MODULUS,
+    U32_MODULUS,
     CommandPacket,
+    CommandReport,
     RcValues,
     StatePacket,
     TimeReply,
     UplinkStatus,
     pack_command,
+    pack_command_report,
     pack_state,
     pack_time_reply,
     pack_uplink_status,
@@ -29,7 +32,7 @@ from wftool.fsp.packets import (
 )
 from wftool.fsp.twoway import RoundTripMatcher
 
-U32_MASK = 0xFFFF_FFFF
+U32_MASK = U32_MODULUS - 1
 
 
 def encode_state(packet: StatePacket) -> bytes:
@@ -45,6 +48,11 @@ def encode_time_reply(reply: TimeReply) -> bytes:
 def encode_uplink_status(status: UplinkStatus) -> bytes:
     """Wire bytes of an uplink status (COBS + delimiter): what an FC with E3 sends, for tests."""
     return encode_frame(pack_uplink_status(status))
+
+
+def encode_command_report(report: CommandReport) -> bytes:
+    """Wire bytes of a command report (COBS + delimiter): what an FC with E4 sends, for tests."""
+    return encode_frame(pack_command_report(report))
 
 
 def encode_command(packet: CommandPacket) -> bytes:
@@ -66,21 +74,33 @@ class CommandSender:
         self.round_trips = round_trips
         self.seq = 0
 
-    def encode(self, rc: Sequence[int], now: float | None = None) -> bytes:
+    def encode(
+        self, rc: Sequence[int], now: float | None = None, *, at_us: int | None = None
+    ) -> bytes:
         """Wire bytes of the next command carrying `rc` (roll, pitch, yaw, throttle, aux3,
-        aux4), stamped with OBC time `now` (default: the clock's now)."""
-        return encode_command(self.next(rc, now))
+        aux4), stamped with OBC time `now` (default: the clock's now); with `at_us` a timed
+        command (E4, spec §13) for that FC time (`micros()`, u32)."""
+        return encode_command(self.next(rc, now, at_us=at_us))
 
-    def next(self, rc: Sequence[int], now: float | None = None) -> CommandPacket:
+    def next(
+        self, rc: Sequence[int], now: float | None = None, *, at_us: int | None = None
+    ) -> CommandPacket:
         """The next command packet (see `encode`), recorded as sent.
 
-        RC values other than six integers within `RC_PULSE_US` raise `TypeError` or
-        `ValueError`, before anything is counted or recorded.
+        RC values other than six integers within `RC_PULSE_US`, or an `at_us` that is no
+        u32, raise `TypeError` or `ValueError`, before anything is counted or recorded.
         """
         values = checked_rc(rc)
+        if at_us is not None and not (
+            isinstance(at_us, Integral) and not isinstance(at_us, bool) and 0 <= at_us <= U32_MASK
+        ):
+            raise ValueError(f"a timed command's FC time is a u32 (µs), not {at_us!r}")
         sent_at = self._now() if now is None else now
         packet = CommandPacket(
-            rc=values, seq=self.seq % SEQ_MODULUS, tx_time_us=int(sent_at * 1e6) & U32_MASK
+            rc=values,
+            seq=self.seq % SEQ_MODULUS,
+            tx_time_us=int(sent_at * 1e6) & U32_MASK,
+            at_us=None if at_us is None else int(at_us),
         )
         if self.round_trips is not None:
             self.round_trips.sent(packet.seq, packet.tx_time_us, sent_at)

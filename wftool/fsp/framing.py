@@ -14,9 +14,11 @@ from cobs import cobs
 
 from wftool.fsp.packets import (
     COMMAND_LENGTH,
+    COMMAND_REPORT_LENGTH,
     STATE_LENGTH,
     STATE_TUNNEL_LENGTH,
     TIME_REPLY_LENGTH,
+    TIMED_COMMAND_LENGTH,
     UPLINK_STATUS_LENGTH,
     VERSION_BASE,
     VERSION_TUNNEL,
@@ -40,12 +42,22 @@ STATE_VERSIONS: Mapping[int, int] = {
     STATE_TUNNEL_LENGTH: VERSION_TUNNEL,
 }
 """Payload length → the version byte a state packet of that length must carry."""
-STREAM_VERSIONS: Mapping[int, int] = {**STATE_VERSIONS, UPLINK_STATUS_LENGTH: VERSION_BASE}
-"""The FC → OBC stream: state packets and E3 uplink statuses (spec §12), told apart by
-their length."""
+STREAM_VERSIONS: Mapping[int, int] = {
+    **STATE_VERSIONS,
+    UPLINK_STATUS_LENGTH: VERSION_BASE,
+    COMMAND_REPORT_LENGTH: VERSION_BASE,
+}
+"""The FC → OBC stream: state packets, E3 uplink statuses (spec §12) and E4 command reports
+(§13), told apart by their length."""
 STATE_E2_VERSIONS: Mapping[int, int] = {**STREAM_VERSIONS, TIME_REPLY_LENGTH: VERSION_BASE}
 """The FC → OBC stream with E2 time replies (spec §10) too."""
-COMMAND_VERSIONS: Mapping[int, int] = {COMMAND_LENGTH: VERSION_BASE}
+COMMAND_VERSIONS: Mapping[int, int] = {
+    COMMAND_LENGTH: VERSION_BASE,
+    TIMED_COMMAND_LENGTH: VERSION_BASE,
+}
+"""The OBC → FC uplink: commands and E4 timed commands (spec §13)."""
+IMMEDIATE_COMMAND_VERSIONS: Mapping[int, int] = {COMMAND_LENGTH: VERSION_BASE}
+"""The uplink as an FC without E4 reads it: a timed command is a chunk of bad length."""
 
 
 def longest_chunk(versions: Mapping[int, int]) -> int:

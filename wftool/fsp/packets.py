@@ -1,4 +1,5 @@
-"""FSP v5 packet models and their byte layouts (spec §3–§6, §10, §12), without the COBS framing.
+"""FSP v5 packet models and their byte layouts (spec §3–§6, §10, §12, §13), without the COBS
+framing.
 
 The models hold raw wire values, so decode → encode is exact; properties convert to physical
 units. Times the decoder derives (unwrapped, OBC-corrected) are left out of equality: two
@@ -23,14 +24,17 @@ VERSION_TUNNEL = VERSION | TUNNEL_FLAG
 STATE_LENGTH = 116
 STATE_TUNNEL_LENGTH = 180
 COMMAND_LENGTH = 24
+TIMED_COMMAND_LENGTH = 28
 TIME_REPLY_LENGTH = 20
 UPLINK_STATUS_LENGTH = 36
+COMMAND_REPORT_LENGTH = 32
 MAVLINK_FIELD_LENGTH = 64
 
 E1_FLAG = 1 << 23
 """Bit 23 of the state packet's reserved2: the E1 counters are in use (spec §6)."""
 SEQ_MODULUS = 1 << 24
 DROPS_MODULUS = 1 << 16
+U32_MODULUS = 1 << 32
 
 Layout = tuple[tuple[str, str], ...]
 """(field name, `struct` code) in wire order, little-endian: the one statement of a layout,
@@ -68,13 +72,17 @@ _FRAME = struct.Struct("<" + _FRAME_FORMAT)
 _TRAILER = struct.Struct("<" + _TRAILER_FORMAT)
 _new = object.__new__
 _COMMAND = struct.Struct("<BBHI6h3xB")
+_TIMED_COMMAND = struct.Struct("<BBHI6hI3xB")
 _TIME_REPLY = struct.Struct("<BBHIII3xB")
 _UPLINK_STATUS = struct.Struct("<BBHIIIIIHBBI3xB")
+_COMMAND_REPORT = struct.Struct("<BBHIIIBB6HxB")
 assert _STATE_BASE.size == STATE_LENGTH
 assert _STATE_TUNNEL.size == STATE_TUNNEL_LENGTH
 assert _COMMAND.size == COMMAND_LENGTH
+assert _TIMED_COMMAND.size == TIMED_COMMAND_LENGTH
 assert _TIME_REPLY.size == TIME_REPLY_LENGTH
 assert _UPLINK_STATUS.size == UPLINK_STATUS_LENGTH
+assert _COMMAND_REPORT.size == COMMAND_REPORT_LENGTH
 
 Q15 = 32768.0
 RC_CHANNELS = ("roll", "pitch", "yaw", "throttle", "aux3", "aux4")
@@ -257,12 +265,16 @@ def rc_values(rc: Sequence[int]) -> RcValues:
 
 @dataclass(slots=True)
 class CommandPacket:
-    """OBC → FC command packet (spec §5): RC values for the FC's MSP receiver path."""
+    """OBC → FC command packet (spec §5): RC values for the FC's MSP receiver path; with
+    `at_us` a timed command (E4, spec §13), which the FC applies at that FC time."""
 
     rc: RcValues
     """roll, pitch, yaw, throttle, aux3, aux4 (µs-style, 1000–2000)."""
     seq: int = 0
     tx_time_us: int = 0
+    at_us: int | None = None
+    """FC `micros()` (u32) to act at: a timed command (28 bytes); None acts when the FC
+    decodes it (24 bytes)."""
 
 
 @dataclass(slots=True)
@@ -360,6 +372,76 @@ class UplinkStatus:
         return FAILSAFE_PHASES[phase] if phase < len(FAILSAFE_PHASES) else f"phase {phase}"
 
 
+class CommandOutcome(enum.IntEnum):
+    """What became of a timed command (E4, spec §13): a command report's `outcome`."""
+
+    ON_TIME = 0
+    """Applied at the first PID iteration at or after its time."""
+    LATE = 1
+    """Its time had come when the FC took it: applied at the next PID iteration."""
+    TOO_FAR = 2
+    """Refused: due a command timeout or more after the FC took it."""
+    QUEUE_FULL = 3
+    """Refused: the FC's queue was full."""
+    SUPERSEDED = 4
+    """Dropped: a newer command acted in its place before or at its time."""
+    EXPIRED = 5
+    """Dropped: the OBC timed out (it sent no fresh command for the timeout) before its time."""
+
+
+OUTCOME_MODULUS = 1 << 16
+"""A command report's counts wrap at 2^16."""
+
+
+@dataclass(slots=True)
+class CommandReport:
+    """FC → OBC command report (spec §13, E4): what became of one timed command, and when.
+
+    Equality is the wire content; the decoder adds the unwrapped FC times and the arrival.
+    """
+
+    command_seq: int
+    """`seq` of the timed command (24 bits)."""
+    command_tx_time_us: int
+    """Its `tx_time_us` (OBC clock, u32), echoed."""
+    at_us: int
+    """The FC time (u32) it asked to act at, echoed."""
+    event_us: int
+    """FC `micros()` (u32) of the PID iteration that applied it (applied: `ON_TIME`, `LATE`);
+    else when it was refused or dropped."""
+    outcome: int
+    """`CommandOutcome`."""
+    queued: int
+    """Timed commands waiting in the FC's queue after this outcome."""
+    counts: tuple[int, int, int, int, int, int]
+    """Timed commands per outcome so far (`CommandOutcome` order), this one included, each
+    mod 2^16: the FC's books, whole even when a report is lost."""
+    at_time_us: int | None = field(default=None, compare=False)
+    """`at_us` unwrapped into the state stream's 64-bit FC time (set by the decoder)."""
+    event_time_us: int | None = field(default=None, compare=False)
+    """`event_us` unwrapped likewise."""
+    arrival_time: float | None = field(default=None, compare=False)
+    """OBC clock (s) when the bytes carrying the report were read."""
+
+    @property
+    def version(self) -> int:
+        return VERSION
+
+    @property
+    def applied(self) -> bool:
+        """The command reached the RC path (on time or late)."""
+        return self.outcome in (CommandOutcome.ON_TIME, CommandOutcome.LATE)
+
+    @property
+    def delay_us(self) -> int | None:
+        """Applied: FC µs from the time it asked for to the PID iteration that applied it
+        (negative: never; late: how late); None when it was not applied."""
+        if not self.applied:
+            return None
+        delay = (self.event_us - self.at_us) % U32_MODULUS
+        return delay - U32_MODULUS if delay >= U32_MODULUS // 2 else delay
+
+
 def parse_state(payload: bytes) -> StatePacket:
     """A validated 116- or 180-byte state payload (see `framing.Deframer`) as a packet.
 
@@ -412,9 +494,39 @@ def pack_state(packet: StatePacket) -> bytes:
 
 
 def parse_command(payload: bytes) -> CommandPacket:
-    """A validated 24-byte command payload as a packet."""
+    """A validated 24-byte command payload (or 28-byte timed command, E4) as a packet."""
+    if len(payload) == TIMED_COMMAND_LENGTH:
+        v = _TIMED_COMMAND.unpack(payload)
+        return CommandPacket(v[4:10], v[1] | v[2] << 8, v[3], v[10])
     v = _COMMAND.unpack(payload)
     return CommandPacket(v[4:10], v[1] | v[2] << 8, v[3])
+
+
+def parse_command_report(payload: bytes) -> CommandReport:
+    """A validated 32-byte command report payload (E4) as a packet."""
+    _, seq_low, seq_high, command_tx, at, event, outcome, queued, *counts, _ = (
+        _COMMAND_REPORT.unpack(payload)
+    )
+    on_time, late, too_far, queue_full, superseded, expired = counts
+    return CommandReport(
+        seq_low | seq_high << 8, command_tx, at, event, outcome, queued,
+        (on_time, late, too_far, queue_full, superseded, expired),
+    )  # fmt: skip
+
+
+def pack_command_report(report: CommandReport) -> bytes:
+    """The unframed payload of `report`, CRC included (what the FC sends; for tests)."""
+    seq = report.command_seq % SEQ_MODULUS
+    if len(report.counts) != len(CommandOutcome):
+        raise ValueError(f"a command report counts {len(CommandOutcome)} outcomes")
+    try:
+        body = _COMMAND_REPORT.pack(
+            VERSION, seq & 0xFF, seq >> 8, report.command_tx_time_us, report.at_us,
+            report.event_us, report.outcome, report.queued, *report.counts, 0,
+        )  # fmt: skip
+    except struct.error as exc:
+        raise ValueError(f"command report field out of range: {exc}") from None
+    return body[:-1] + bytes([crc8(body[:-1])])
 
 
 def parse_time_reply(payload: bytes) -> TimeReply:
@@ -462,7 +574,12 @@ def pack_command(packet: CommandPacket) -> bytes:
     if len(packet.rc) != len(RC_CHANNELS):
         raise ValueError(f"a command carries {len(RC_CHANNELS)} RC values: {RC_CHANNELS}")
     try:
-        body = _COMMAND.pack(VERSION, seq & 0xFF, seq >> 8, packet.tx_time_us, *packet.rc, 0)
+        if packet.at_us is None:
+            body = _COMMAND.pack(VERSION, seq & 0xFF, seq >> 8, packet.tx_time_us, *packet.rc, 0)
+        else:
+            body = _TIMED_COMMAND.pack(
+                VERSION, seq & 0xFF, seq >> 8, packet.tx_time_us, *packet.rc, packet.at_us, 0
+            )
     except struct.error as exc:
         raise ValueError(f"command packet field out of range: {exc}") from None
     return body[:-1] + bytes([crc8(body[:-1])])

@@ -192,6 +192,28 @@ def _fc_uplink(summary: StreamSummary) -> Text | None:
     return text
 
 
+def _timed(summary: StreamSummary) -> Text | None:
+    """When timed commands acted, by the FC's own reports (E4, spec §13)."""
+    timed = summary.timed
+    if timed is None:
+        return None
+    apply = timed.apply
+    text = f"[b]timed[/] {timed.reports:,} reports: "
+    if apply is None:
+        text += "none applied on time"
+    else:
+        text += (
+            f"applied − asked P1 {apply.p1_us:.0f} µs  P50 {apply.p50_us:.0f} µs  P99 "
+            f"{apply.p99_us:.0f} µs  (P99−P1 {apply.spread_us:.0f} µs, {apply.count:,} on time)"
+        )
+    latest = "–" if timed.latest_us is None else f"{timed.latest_us / 1e3:.3f} ms"
+    text += (
+        f"\n  late {timed.late}  refused {timed.refused}  dropped {timed.dropped}  "
+        f"reports lost {timed.lost_reports}  latest {latest}"
+    )
+    return Text.from_markup(text)
+
+
 def _two_way(summary: StreamSummary) -> Text | None:
     """Round trips and the offset's uncertainty, when the FC answers commands (spec §10)."""
     trip, two_way = summary.round_trip, summary.two_way
@@ -247,7 +269,7 @@ def render(
         Text(),
         *_values(latest),
     ]
-    for line in (_uplink(summary), _fc_uplink(summary), _two_way(summary)):
+    for line in (_uplink(summary), _fc_uplink(summary), _timed(summary), _two_way(summary)):
         if line is not None:
             parts += [Text(), line]
     if verdict is not None:

@@ -18,7 +18,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
-from wftool.errors import PortError, UsageError
+from wftool.errors import ClockError, PortError, UsageError
 from wftool.fsp import CommandPacket, FspPort, StatePacket
 from wftool.recording.events import Event, Sink
 from wftool.verify.monitor import HealthSampler, StreamMonitor, StreamSummary
@@ -28,6 +28,8 @@ REFRESH_S = 0.25
 READ_TIMEOUT_S = 0.05
 BACKOFF_FIRST_S = 0.1
 BACKOFF_MAX_S = 2.0
+LEAD_MAX_S = 0.15
+"""`fsp_cmd_timeout_ms`'s maximum: a timed command further ahead is refused by any FC."""
 
 
 def check_duration(seconds: float | None, name: str = "the duration") -> float | None:
@@ -45,9 +47,26 @@ class LiveOptions:
     duration_s: float | None = None
     uplink_rate_hz: float | None = None
     """Send the uplink pattern at this rate; None sends nothing."""
+    uplink_lead_s: float | None = None
+    """Send the pattern as timed commands (E4, spec §13), each for this long after it is
+    sent, mapped to FC time by the run's clock (immediate until it locks); None: immediate."""
 
     def __post_init__(self) -> None:
         check_duration(self.duration_s)
+        check_uplink_lead(self.uplink_lead_s)
+        if self.uplink_lead_s is not None and not self.uplink_rate_hz:
+            raise UsageError("a lead times the uplink pattern's commands: send the pattern too")
+
+
+def check_uplink_lead(lead_s: float | None, name: str = "the uplink lead") -> float | None:
+    """`lead_s`, if timed commands can be sent that far ahead: None, or 0 to 0.15 s (the
+    longest command timeout, past which the FC refuses any); else a `UsageError`."""
+    if lead_s is not None and not (math.isfinite(lead_s) and 0 <= lead_s <= LEAD_MAX_S):
+        raise UsageError(
+            f"{name} must be 0 to {LEAD_MAX_S * 1e3:g} ms (the FC refuses a timed command "
+            f"due its command timeout or more ahead), not {lead_s * 1e3:g} ms"
+        )
+    return lead_s
 
 
 class Commander(Protocol):
@@ -191,12 +210,21 @@ class _LiveRun:
                 rc = commander.command(t)
                 if rc is not None:
                     rc = tuple(rc)
-                    command = port.send_command(rc, now=t)
+                    command = self._send(port, rc, t)
                     self._emit(Event("command", t, rc=rc), command)
                     commander.sent(t)
         except PortError:
             self._drop(self._now())
         return t
+
+    def _send(self, port: FspPort, rc: tuple[int, ...], t: float) -> CommandPacket:
+        lead = self._options.uplink_lead_s
+        if lead is not None:
+            try:
+                return port.send_command(rc, now=t, at=t + lead, decoder=self._monitor.decoder)
+            except ClockError:
+                pass  # until the run's clock locks, the pattern goes out as immediate commands
+        return port.send_command(rc, now=t)
 
     def _drop(self, t: float) -> None:
         """The port is gone (or the run is over): close it, and retry after the backoff."""

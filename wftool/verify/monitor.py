@@ -16,7 +16,10 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 
 from wftool.fsp import (
+    CommandOutcome,
     CommandPacket,
+    CommandReport,
+    ReportBook,
     SensorFrame,
     StateDecoder,
     StatePacket,
@@ -86,6 +89,69 @@ class IntervalHistogram:
 
 
 @dataclass(frozen=True)
+class TimedSummary:
+    """What the FC reported on timed commands (E4, spec §13) over a run."""
+
+    reports: int
+    outcomes: dict[str, int]
+    """Commands per `CommandOutcome` name, by the FC's own counts (lost reports included)."""
+    lost_reports: int
+    apply: IntervalSummary | None
+    """Commands applied on time: the applying PID iteration − the FC time asked for (µs;
+    the FC's rule keeps it below one PID period)."""
+    latest_us: int | None
+    """The latest any command was applied after its time (µs; late ones included)."""
+
+    @property
+    def late(self) -> int:
+        return self.outcomes[CommandOutcome.LATE.name]
+
+    @property
+    def refused(self) -> int:
+        return (
+            self.outcomes[CommandOutcome.TOO_FAR.name]
+            + self.outcomes[CommandOutcome.QUEUE_FULL.name]
+        )
+
+    @property
+    def dropped(self) -> int:
+        return (
+            self.outcomes[CommandOutcome.SUPERSEDED.name]
+            + self.outcomes[CommandOutcome.EXPIRED.name]
+        )
+
+
+class TimedTracker:
+    """The FC's command reports of a run, as `TimedSummary`."""
+
+    def __init__(self) -> None:
+        self.book = ReportBook()
+        self.delays = IntervalHistogram()
+        self.latest_us: int | None = None
+
+    def add(self, report: CommandReport) -> None:
+        self.book.add(report)
+        delay = report.delay_us
+        if delay is None:
+            return
+        if report.outcome == CommandOutcome.ON_TIME:
+            self.delays.add(delay)
+        self.latest_us = delay if self.latest_us is None else max(self.latest_us, delay)
+
+    def summary(self) -> TimedSummary | None:
+        book = self.book
+        if not book.reports:
+            return None
+        return TimedSummary(
+            reports=book.reports,
+            outcomes={outcome.name: count for outcome, count in book.counts.items()},
+            lost_reports=book.lost,
+            apply=self.delays.summary(),
+            latest_us=self.latest_us,
+        )
+
+
+@dataclass(frozen=True)
 class StreamSummary:
     """Everything `verify` reports, as plain data (`as_json` for scripts)."""
 
@@ -131,6 +197,8 @@ class StreamSummary:
     fc_uplink_age_s: float | None = None
     """How long before the summary (OBC clock) `fc_uplink` was read: the FC sends one every
     100 ms, so an old one means it stopped (a reset, a lost link)."""
+    timed: TimedSummary | None = None
+    """The FC's reports on timed commands (E4), when it sent any: when each acted."""
 
     @property
     def errors(self) -> int:
@@ -174,6 +242,8 @@ class StreamSummary:
             interval = getattr(self, key)
             if interval is not None:
                 data[key]["spread_us"] = interval.spread_us
+        if self.timed is not None and self.timed.apply is not None:
+            data["timed"]["apply"]["spread_us"] = self.timed.apply.spread_us
         for key in ("clock", "two_way"):  # NaN (not yet known) is not JSON: null
             if data[key] is not None:
                 data[key] = {k: _finite_or_none(v) for k, v in data[key].items()}
@@ -242,6 +312,7 @@ class StreamMonitor:
         assert self.decoder.round_trips is not None
         self.decoder.round_trips.on_round_trip = self._round_trip
         self.round_trips = IntervalHistogram()
+        self.timed = TimedTracker()
         self._commands = 0
         """Commands sent on this connection (a port opened with it numbers them from 0)."""
         self._connected_at: float | None = None
@@ -297,6 +368,8 @@ class StreamMonitor:
         status = decoder.uplink_status
         if status is not None and (self.fc_uplink is None or status is not self.fc_uplink.status):
             self.fc_uplink = uplink_report(status, decoder.clock)
+        for report in decoder.take_command_reports():
+            self.timed.add(report)
         if not packets:
             return packets
         previous = before
@@ -402,6 +475,7 @@ class StreamMonitor:
                 if self.fc_uplink is not None and self.fc_uplink.status.arrival_time is not None
                 else None
             ),
+            timed=self.timed.summary(),
         )
 
 

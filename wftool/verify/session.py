@@ -59,13 +59,14 @@ class VerifyResult:
 class VerifySession:
     """One verify run on a port: `run()` until the duration is up, then the result.
 
-    `uplink_rate_hz` sends the uplink pattern (None sends nothing); `criteria.uplink` is
-    what judges it (`criteria_for(uplink=True)`). `record_path` (in `record_format`, see
-    `wftool.recording.reader`) and `csv_path` are created here, so a path that cannot be
-    written fails before the run, and finished when the run ends, however it ends
-    (`close()` them when the session is never run). `foxglove_port` serves the stream live
-    to Foxglove on `foxglove_host` (port 0: any free one; `live_view.url` says which),
-    from now until `close()`. `clock` names the estimator of the frames' OBC times
+    `uplink_rate_hz` sends the uplink pattern (None sends nothing), as timed commands
+    `uplink_lead_s` ahead if given (E4: the FC reports when each acted, `summary.timed`);
+    `criteria.uplink` is what judges it (`criteria_for(uplink=True)`). `record_path` (in
+    `record_format`, see `wftool.recording.reader`) and `csv_path` are created here, so a
+    path that cannot be written fails before the run, and finished when the run ends,
+    however it ends (`close()` them when the session is never run). `foxglove_port` serves
+    the stream live to Foxglove on `foxglove_host` (port 0: any free one; `live_view.url`
+    says which), from now until `close()`. `clock` names the estimator of the frames' OBC times
     (`wftool.fsp.ESTIMATORS`; None: the default). `sinks` get the run as the recording
     does (`wftool.recording.events.Sink`; a ROS 2 node, say), and are closed with it;
     `commander` sends commands instead of the uplink pattern (`wftool.verify.live.Commander`).
@@ -80,6 +81,7 @@ class VerifySession:
         criteria: Criteria | None = None,
         expected_rate_hz: float | None = None,
         uplink_rate_hz: float | None = None,
+        uplink_lead_s: float | None = None,
         record_path: Path | None = None,
         csv_path: Path | None = None,
         clock: str | None = None,
@@ -95,7 +97,7 @@ class VerifySession:
         self._commander = commander
         if uplink_rate_hz is not None:
             check_uplink_rate(uplink_rate_hz)
-        self.options = LiveOptions(url, baudrate, duration_s, uplink_rate_hz)
+        self.options = LiveOptions(url, baudrate, duration_s, uplink_rate_hz, uplink_lead_s)
         self.criteria = criteria or criteria_for(uplink=uplink_rate_hz is not None)
         uplink = UplinkTracker() if uplink_rate_hz is not None else None
         self.monitor = StreamMonitor(url, expected_rate_hz, uplink=uplink, clock=clock)

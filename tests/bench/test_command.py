@@ -1,0 +1,66 @@
+"""`bench command` on the virtual FC: immediate against timed commands, judged by its true clock.
+
+Behaviour, not timing: every timed command gets the FC's report, the FC applies an on-time
+command at the first PID iteration at or after its time (never before, never a period
+after), and what the FC says it applied is what its frames then carry.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from tests.conftest import run_cli
+from wftool.bench.command import IMMEDIATE, TIMED, run_command_bench
+
+pytestmark = pytest.mark.slow
+
+
+def test_timed_commands_act_at_the_pid_iteration_of_their_time(sitl_binary: Path) -> None:
+    result = run_command_bench(sitl_binary, seconds=3.0, rates_hz=(100.0,))
+    assert result.two_way and result.pid_period_us == pytest.approx(125, abs=2)
+    rows = {row.mode: row for row in result.rows}
+    assert set(rows) == {IMMEDIATE, TIMED}
+    timed, immediate = rows[TIMED], rows[IMMEDIATE]
+    assert timed.sent == immediate.sent == 300
+    assert timed.unreported == 0 and timed.unlocked == 0 and result.lost_reports == 0
+    assert timed.applied + timed.refused + timed.dropped == timed.sent
+    assert timed.refused == 0  # 5 ms ahead: well inside the command timeout and the queue
+    own = timed.asked
+    assert own is not None and own.count == timed.applied - timed.late
+    assert own.p1_us >= 0 and own.max_us < result.pid_period_us  # the FC's rule, exactly
+    assert timed.apply is not None and timed.seen is not None
+    # each applied command shows in the stream, at or after its application
+    assert timed.seen.count >= 0.95 * timed.applied and timed.seen.p1_us >= timed.apply.p1_us
+    assert immediate.applied >= 0.95 * immediate.sent  # a time reply for (nearly) each
+
+
+def test_bench_command_prints_both_rows_and_the_note(
+    capsys: pytest.CaptureFixture[str], sitl_binary: Path
+) -> None:
+    code, out, err = run_cli(
+        capsys, "bench", "command", "--seconds", "2", "--rates", "100", "--binary",
+        str(sitl_binary),
+    )  # fmt: skip
+    assert (code, err) == (0, "")
+    assert "bench command: 2 s per row on the virtual FC (PID loop 8000 Hz" in out
+    assert any(line.startswith("immediate  100") for line in out.splitlines()), out
+    assert any(line.startswith("timed      100        5") for line in out.splitlines()), out
+    assert "P99−P1 of the apply time, µs: 100 Hz: immediate " in out
+    assert "Goal, timed ≤ one PID period (125 µs): by the FC's clock " in out
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (("--rates", "100,fast"), "expected numbers like 100,500: '100,fast'"),
+        (("--rates", "0"), "command rates must be above 0 and at most 1000 Hz: '0'"),
+        (("--lead-ms", "50"), "50.0 is not in the range 0.0<=x<=40.0"),
+    ],
+)
+def test_bench_command_bad_options_are_one_line(
+    capsys: pytest.CaptureFixture[str], args: tuple[str, ...], message: str
+) -> None:
+    code, _, err = run_cli(capsys, "bench", "command", *args, "--binary", __file__)
+    assert code == 2 and message in err and "Traceback" not in err

@@ -1,0 +1,309 @@
+"""Timed commands (E4) on the real firmware (the patched SITL, the OBC flying alone).
+
+Each command acts at its FC time: the FC's own report says which PID iteration applied it,
+within one PID period of the time asked for, and the stream shows its RC value from then on,
+never before. Late and too-far commands are counted; a stuck OBC repeating a timed packet, a
+command far in the future, a flood of them, and an OBC that dies with commands queued never
+keep the aircraft under OBC control past the timeout. A firmware built without E4 rejects a
+timed command by its length and never applies it.
+
+Times are the FC's own (E2 replies, E3 statuses, E4 reports, frame sample times): the host's
+are a loaded machine's.
+"""
+
+from __future__ import annotations
+
+import random
+import shutil
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+
+from wftool.fc.msp import MspClient
+from wftool.firmware import BuildOptions, build
+from wftool.firmware.manifest import BuildFlags
+from wftool.firmware.project import Project
+from wftool.fsp import (
+    CommandOutcome,
+    CommandPacket,
+    CommandReport,
+    FspReader,
+    StateDecoder,
+    UplinkFlag,
+    UplinkStatus,
+    encode_command,
+)
+from wftool.fsp.twoway import RoundTrip, TwoWayClockEstimator
+from wftool.sitl.session import VirtualFcSession
+
+pytestmark = pytest.mark.slow
+
+TIMEOUT_US = 50_000
+"""The FC's fsp_cmd_timeout_ms (the default)."""
+LEAD_S = 0.005
+
+
+class TimedObc:
+    """wftool as an OBC sending timed commands, reading everything the FC says."""
+
+    def __init__(self, url: str) -> None:
+        self.decoder = StateDecoder("twoway")
+        assert self.decoder.round_trips is not None
+        self.decoder.round_trips.on_round_trip = self._answered
+        self.reader = FspReader(url, decoder=self.decoder).open()
+        self.reports: dict[int, CommandReport] = {}
+        """By seq."""
+        self.frames: list[tuple[int, int]] = []
+        """(FC time, roll) of every frame."""
+        self.statuses: list[UplinkStatus] = []
+        self.taken_us: dict[int, int] = {}
+        """seq → FC time the FC took the command (its time reply)."""
+        self._seq_of: dict[float, int] = {}
+        self._rng = random.Random(7)
+
+    def close(self) -> None:
+        self.reader.close()
+
+    def _answered(self, trip: RoundTrip) -> None:
+        seq = self._seq_of.get(trip.obc_sent)
+        if seq is not None:
+            self.taken_us[seq] = trip.fc_received_us
+
+    def pump(self, seconds: float) -> None:
+        until = time.monotonic() + seconds
+        while (left := until - time.monotonic()) > 0:
+            self.read(min(left, 0.001))
+
+    def read(self, timeout: float) -> None:
+        data = self.reader.read_bytes(timeout)
+        if data:
+            for packet in self.decoder.feed(data, time.monotonic()):
+                self.frames += [(f.time_us or 0, f.rc[0]) for f in packet.frames]
+            for report in self.decoder.take_command_reports():
+                self.reports[report.command_seq] = report
+            status = self.decoder.uplink_status
+            if status is not None and (not self.statuses or self.statuses[-1] is not status):
+                self.statuses.append(status)
+
+    def send(self, roll: int, at: float | None = None) -> CommandPacket:
+        now = time.monotonic()
+        packet = self.reader.send_command((roll, 1500, 1500, 1000, 1000, 1000), now, at=at)
+        self._seq_of[now] = packet.seq
+        return packet
+
+    def lock(self) -> None:
+        """Immediate commands at about 100 Hz until the two-way clock is in use."""
+        clock = self.decoder.clock
+        assert isinstance(clock, TwoWayClockEstimator)
+        deadline = time.monotonic() + 60.0
+        while not (clock.state.locked and clock.two_way.active):
+            assert time.monotonic() < deadline, "the two-way clock never locked"
+            self.send(1500)
+            self.pump(self._rng.uniform(0.005, 0.015))
+
+    def stream(self, count: int, rate_hz: float, lead_s: float, roll: Callable[[int], int]):
+        """`count` timed commands at `rate_hz`, each sent `lead_s` before its instant; the
+        packets sent."""
+        sent = []
+        start = time.monotonic() + lead_s
+        for k in range(count):
+            at = start + k / rate_hz + self._rng.uniform(0.0, 0.001)
+            while (left := at - lead_s - time.monotonic()) > 0:
+                self.read(min(left, 0.0005))
+            sent.append(self.send(roll(k), at=at))
+        return sent
+
+    def wait_reports(self, packets: list[CommandPacket], timeout: float = 2.0) -> None:
+        deadline = time.monotonic() + timeout
+        while any(p.seq not in self.reports for p in packets) and time.monotonic() < deadline:
+            self.pump(0.01)
+
+    def rolls(self) -> set[int]:
+        return {roll for _, roll in self.frames}
+
+    def first_status(self, holds: Callable[[UplinkStatus], bool], after_us: int) -> int | None:
+        """FC time of the first uplink status after `after_us` for which `holds`."""
+        times = [
+            s.sent_us for s in self.statuses if s.sent_us and s.sent_us > after_us and holds(s)
+        ]
+        return min(times, default=None)
+
+
+@pytest.fixture(scope="module")
+def alone(sitl_binary: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple]:
+    """A virtual FC the OBC flies alone (RX_MSP), with time replies, and its PID period."""
+    workdir = tmp_path_factory.mktemp("timed")
+    with VirtualFcSession(sitl_binary, workdir, port_base=None, time_reply=True) as fc:
+        with MspClient.open(fc.msp_url) as msp:
+            pid_us = msp.pid_looptime_us()
+        yield fc, pid_us
+
+
+@pytest.fixture
+def obc(alone: tuple) -> Iterator[TimedObc]:
+    fc, _ = alone
+    link = TimedObc(fc.fsp_url)
+    try:
+        link.lock()
+        yield link
+    finally:
+        link.pump(0.1)  # what it queued has acted or expired before the next test
+        link.close()
+
+
+def test_timed_commands_act_at_their_fc_time_within_one_pid_period(alone, obc) -> None:
+    _, pid_us = alone
+    sent = obc.stream(300, 100.0, LEAD_S, roll=lambda k: 1100 + k)
+    obc.wait_reports(sent)
+    obc.pump(0.05)
+    reports = [obc.reports[p.seq] for p in sent if p.seq in obc.reports]
+    assert len(reports) == len(sent), "every timed command is reported on"
+    on_time = [r for r in reports if r.outcome == CommandOutcome.ON_TIME]
+    late = [r for r in reports if r.outcome == CommandOutcome.LATE]
+    assert len(on_time) >= 0.9 * len(sent), [CommandOutcome(r.outcome).name for r in reports]
+    assert len(on_time) + len(late) == len(sent)  # none refused, none dropped
+    for report in on_time:
+        assert report.delay_us is not None and 0 <= report.delay_us < pid_us, report
+    # the stream shows each value from the PID iteration that applied it on, never before
+    for packet in sent:
+        report = obc.reports[packet.seq]
+        assert report.event_time_us is not None
+        shown = [t for t, roll in obc.frames if roll == packet.rc[0]]
+        assert shown, f"roll {packet.rc[0]} never in the stream"
+        assert min(shown) >= report.event_time_us, (min(shown), report)
+    status = obc.decoder.uplink_status
+    assert status is not None and status.accepted >= len(sent)
+
+
+def test_late_and_too_far_commands_are_counted(obc: TimedObc) -> None:
+    now = time.monotonic()
+    past = obc.send(1301, at=now - 0.05)
+    obc.pump(0.01)
+    far = obc.send(1302, at=time.monotonic() + 0.2)  # beyond the 50 ms timeout
+    obc.pump(0.01)
+    gone = obc.send(1303, at=time.monotonic() + 0.01)
+    obc.wait_reports([past, far, gone])
+    obc.pump(0.05)
+    late, refused, applied = (obc.reports[p.seq] for p in (past, far, gone))
+    assert late.outcome == CommandOutcome.LATE and late.delay_us is not None
+    assert 40_000 <= late.delay_us <= 60_000 + 1000 * 5  # asked for 50 ms before it came
+    assert refused.outcome == CommandOutcome.TOO_FAR
+    assert applied.outcome == CommandOutcome.ON_TIME
+    assert refused.counts[CommandOutcome.TOO_FAR] >= 1
+    assert 1301 in obc.rolls() and 1302 not in obc.rolls() and 1303 in obc.rolls()
+
+
+def test_an_obc_that_dies_with_commands_queued_is_gone_at_its_last_packets_timeout(
+    obc: TimedObc,
+) -> None:
+    """100 Hz, each command 40 ms ahead; the OBC dies after the last: the queued ones act
+    (they were fresh), and the FC's timeout comes 50 ms after the last command arrived,
+    not 50 ms after the last one acted."""
+    sent = obc.stream(50, 100.0, 0.040, roll=lambda k: 1400 + k)
+    last = sent[-1]
+    obc.pump(0.3)  # dead: it sends nothing more, and reads what the FC says
+    taken = obc.taken_us.get(last.seq)
+    assert taken is not None, "the last command was not answered"
+    queued = [obc.reports[p.seq] for p in sent[-4:]]
+    assert all(r.outcome == CommandOutcome.ON_TIME for r in queued), queued
+    assert queued[-1].event_time_us is not None
+    assert queued[-1].event_time_us - taken >= 35_000  # acted after the OBC was gone
+    status = obc.decoder.uplink_status
+    assert status is not None and status.timed_out_at_us is not None
+    timed_out = status.timed_out_at_us - taken
+    assert TIMEOUT_US <= timed_out <= TIMEOUT_US + 2000, timed_out  # one FSP task period late
+    # the OBC flies alone: its receiver's signal ends then too, though a frame came 40 ms later
+    lost = obc.first_status(lambda s: s.has(UplinkFlag.RX_LOSS), after_us=taken)
+    assert lost is not None and lost - taken <= TIMEOUT_US + 2000, lost - taken
+    assert not status.has(UplinkFlag.LIVE)
+
+
+def test_a_stuck_obc_repeating_a_timed_packet_acts_once(obc: TimedObc) -> None:
+    obc.stream(20, 100.0, LEAD_S, roll=lambda k: 1500)
+    packet = obc.send(1555, at=time.monotonic() + LEAD_S)
+    before = obc.decoder.uplink_status
+    assert before is not None
+    wire = encode_command(packet)
+    for _ in range(50):  # the same bytes at 100 Hz for half a second
+        obc.reader.port.write(wire)
+        obc.pump(0.01)
+    obc.pump(0.1)
+    report = obc.reports[packet.seq]
+    assert report.outcome == CommandOutcome.ON_TIME
+    status = obc.decoder.uplink_status
+    assert status is not None and status.stale - before.stale >= 45
+    taken = obc.taken_us[packet.seq]
+    assert status.timed_out_at_us is not None
+    assert TIMEOUT_US <= status.timed_out_at_us - taken <= TIMEOUT_US + 2000
+    lost = obc.first_status(lambda s: s.has(UplinkFlag.RX_LOSS), after_us=taken)
+    assert lost is not None and lost - taken <= TIMEOUT_US + 2000, lost - taken  # then failsafe
+
+
+def test_a_far_future_command_never_acts(obc: TimedObc) -> None:
+    far = obc.send(1666, at=time.monotonic() + 30.0)
+    obc.wait_reports([far])
+    obc.pump(0.1)
+    assert obc.reports[far.seq].outcome == CommandOutcome.TOO_FAR
+    assert 1666 not in obc.rolls()
+
+
+def test_a_flood_fills_the_queue_and_the_rest_is_refused(obc: TimedObc) -> None:
+    # in one burst, each due 1.2 ms after the one before (a frame shows each), the last
+    # 45 ms ahead: the FC takes four a run, applies them as they fall due
+    at = time.monotonic() + 0.010
+    flood = [obc.send(1700 + k, at=at + 0.0012 * k) for k in range(30)]
+    obc.wait_reports(flood)
+    obc.pump(0.05)
+    outcomes = [CommandOutcome(obc.reports[p.seq].outcome) for p in flood]
+    applied = [p for p, o in zip(flood, outcomes, strict=True) if o == CommandOutcome.ON_TIME]
+    refused = outcomes.count(CommandOutcome.QUEUE_FULL)
+    assert refused >= 1 and len(applied) + refused == len(flood), outcomes
+    assert len(applied) >= 8  # the queue's eight, and what came after room was made
+    assert {p.rc[0] for p in applied} <= obc.rolls()
+    last = obc.reports[flood[-1].seq]
+    assert last.counts[CommandOutcome.QUEUE_FULL] >= refused
+
+
+# -- a firmware without E4 ----------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def without_e4(
+    fresh_clone: Project, sitl_build, tmp_path_factory: pytest.TempPathFactory
+) -> Iterator[Path]:
+    """The SITL built with -DFSP_NO_TIMED_COMMANDS, copied aside (the clone's build output
+    is switched back to the default build after)."""
+    flagged = build(
+        fresh_clone,
+        "sitl",
+        BuildOptions(jobs=2, flags=BuildFlags(defines=("FSP_NO_TIMED_COMMANDS",))),
+    )
+    binary = tmp_path_factory.mktemp("no-e4") / flagged.firmware.name
+    shutil.copy2(flagged.firmware, binary)
+    build(fresh_clone, "sitl", BuildOptions(jobs=2))
+    yield binary
+
+
+def test_a_firmware_without_timed_commands_rejects_them_and_never_applies_them(
+    without_e4: Path, tmp_path: Path
+) -> None:
+    with VirtualFcSession(without_e4, tmp_path, port_base=None, time_reply=True) as fc:
+        obc = TimedObc(fc.fsp_url)
+        try:
+            obc.lock()
+            before = obc.decoder.uplink_status
+            assert before is not None
+            sent = obc.stream(50, 100.0, LEAD_S, roll=lambda k: 1800 + k)
+            obc.pump(0.3)
+            status = obc.decoder.uplink_status
+            assert status is not None
+            assert status.rejected - before.rejected == len(sent)  # by length, each of them
+            assert status.command_seq < sent[0].seq  # the newest fresh: an immediate one
+            assert not obc.reports  # no command report: the FC knows none
+            assert not {1800 + k for k in range(50)} & obc.rolls()
+            # the immediate commands before were the last to steer: the uplink timed out
+            assert status.timed_out_at_us is not None and status.has(UplinkFlag.RX_LOSS)
+        finally:
+            obc.close()
