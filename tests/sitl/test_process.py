@@ -107,6 +107,36 @@ def test_wait_back_names_a_crash_instead_of_starting_again(virtual_fc: VirtualFC
     assert not virtual_fc.running
 
 
+@pytest.mark.parametrize("stage", ["_uart1_problem", "_loop_problem"])
+@pytest.mark.parametrize("ending", [signal.SIGFPE, signal.SIGTERM])
+def test_a_sitl_ending_while_it_starts_is_named_with_its_log(
+    sitl_binary: Path,
+    tmp_path: Path,
+    stage: str,
+    ending: signal.Signals,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The process ending while `start` waits for UART1 or for the PID loop over MSP — a
+    crash (SIGFPE), or a `stop()` from another thread (SIGTERM) — is said as such: how it
+    ended, and where its log is (not as the MSP client's lost peer, nor a bare assertion)."""
+    fc = VirtualFC(sitl_binary, tmp_path, port_base=None)
+    wait = getattr(VirtualFC, stage)
+
+    def end_first(self: VirtualFC, *args: object) -> str:
+        assert self._process is not None
+        if ending == signal.SIGTERM:
+            threading.Thread(target=self.stop).start()
+        else:
+            os.kill(self._process.pid, ending)
+        return wait(self, *args)
+
+    monkeypatch.setattr(VirtualFC, stage, end_first)
+    with pytest.raises(SitlError) as error:
+        fc.start()
+    assert str(error.value) == f"SITL ended with {ending.name} while starting: {fc.log_path}"
+    assert not fc.running
+
+
 def test_a_simulator_sending_while_the_fc_boots_does_not_crash_it(
     sitl_binary: Path, tmp_path: Path
 ) -> None:
