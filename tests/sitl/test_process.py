@@ -218,6 +218,43 @@ def test_a_uart_takes_a_client_only_once_it_is_set_up(sitl_binary: Path, tmp_pat
         reader.join()
 
 
+@pytest.mark.skipif(GDB is None, reason="needs gdb (scripts/setup installs it)")
+@pytest.mark.skipif(platform.machine() != "x86_64", reason="the stall reads an x86-64 register")
+def test_a_host_stall_before_lockstep_leaves_the_pid_loop_at_its_rate(
+    sitl_binary: Path, tmp_path: Path
+) -> None:
+    """The FC stopped (gdb) for 50 ms between its first gyro run and the start of lockstep
+    (at its `prctl(PR_SET_TIMERSLACK)`), as a loaded host may: the scheduler, 400 gyro periods
+    behind, recovered to a target between two gyro samples that the lockstep clock never
+    reached, and the PID loop stalled (MSP PID cycle ~45 ms, about one start in 10-25 under
+    load). It must run every gyro period."""
+    base = free_port_base()
+    script = tmp_path / "stall.gdb"
+    script.write_text(
+        "set pagination off\nset confirm off\nbreak prctl if $rdi == 29\n"
+        "commands\nsilent\nshell sleep 0.05\ndelete\ncontinue\nend\nrun\n"
+    )
+    log = tmp_path / "gdb.log"
+    with log.open("wb") as output:
+        gdb = subprocess.Popen(
+            [str(GDB), "-q", "-nx", "-batch", "-x", script, "--args", sitl_binary,
+             f"--port-base={base}", f"--sim-port-base={base + SIM_PORT_OFFSET}",
+             "--exit-with-parent"],
+            cwd=tmp_path, stdin=subprocess.DEVNULL, stdout=output, stderr=subprocess.STDOUT,
+        )  # fmt: skip
+    try:
+        assert wait_for(lambda: b"reason=start" in log.read_bytes(), 30), log.read_text()[-500:]
+        with MspClient.open(uart_url(1, base)) as msp:
+            cycles = set()
+            for _ in range(20):
+                cycles.add(msp.pid_cycle_us())
+                time.sleep(0.05)
+        assert cycles == {125}, f"PID cycles (us) after the stall: {sorted(cycles)}"
+    finally:
+        gdb.kill()
+        gdb.wait()
+
+
 def test_the_sitl_says_how_late_the_host_ran_it(virtual_fc: VirtualFC) -> None:
     """Lateness totals from the first instant the clock waited for (patch 0015)."""
     assert wait_for(lambda: read_lateness(virtual_fc.log_path), 5)
