@@ -127,11 +127,12 @@ class VirtualBoard:
                 self.enter_bootloader()
 
     def _last_reset(self) -> bytes:
-        """SITL's last `[system]Reset…` line in its log (the reason it exited)."""
+        """The latest SITL process's last `[system]Reset…` line in its log (the reason it
+        exited; none if it crashed)."""
         if not self.fc.log_path.exists():
             return b""
         with self.fc.log_path.open("rb") as log:
-            log.seek(max(0, log.seek(0, 2) - 4096))
+            log.seek(max(self.fc.log_offset, log.seek(0, 2) - 4096))
             tail = log.read()
         start = tail.rfind(RESET)
         return tail[start:].split(b"\n", 1)[0] if start >= 0 else b""

@@ -149,6 +149,20 @@ def test_paused_fc_clock_reinitialises_the_estimator(clock: str):
     assert link.worst_error_since(len(link.errors) - 2000) < 0.0015
 
 
+def test_fc_clock_standing_still_while_learning_the_rate_is_learnt_past():
+    """A virtual FC re-anchors its lockstep clock (its clock stands still 0.3 s) before the
+    envelope knows the rate: the window the first rate comes from spans the step, so that
+    rate is not kept through the step it then sees; the estimator locks again and tracks."""
+    link = SimulatedLink(clock="envelope")
+    link.run(2)
+    link.obc_shift_s += 0.3
+    link.run(20)
+    state = link.decoder.clock_state
+    assert state.locked and state.steps == 1
+    assert abs(state.rate_ppm - link.skew_ppm) < 20
+    assert link.worst_error_since(len(link.errors) - 10000) < 0.0015
+
+
 def test_fc_clock_without_obc_times_uses_half_range_rule():
     clock = FcClock()
     assert clock.unwrap(2**32 - 10) == (2**32 - 10, False)

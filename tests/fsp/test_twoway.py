@@ -45,15 +45,32 @@ class Link:
     packet_period_us: int = 1000
     command_period_s: float = 0.02
     fc_start_us: int = 5_000_000
+    obc_step: tuple[float, float] = (math.inf, 0.0)
+    """(true instant, step): from then on the OBC clock reads `step` s later."""
+    fc_pause: tuple[int, float] = (U32 << 8, 0.0)
+    """(FC µs, seconds): the FC clock stands still there that long (a virtual FC whose
+    lockstep clock re-anchors after the host fell behind)."""
+    """(true instant, step): from then on the OBC clock reads `step` s later."""
     events: list[tuple[float, int, str, object]] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         self.rng = random.Random(self.seed)
 
     def truth(self, fc_us: float) -> float:
-        return self.offset_s + self.rate * fc_us * 1e-6
+        paused_at, pause_s = self.fc_pause
+        return self.offset_s + self.rate * fc_us * 1e-6 + (pause_s if fc_us > paused_at else 0.0)
+
+    def obc_clock(self, t: float) -> float:
+        """What the OBC clock reads at true instant `t`."""
+        at, step = self.obc_step
+        return t + step if t >= at else t
 
     def fc_of(self, obc: float) -> int:
+        paused_at, pause_s = self.fc_pause
+        if obc >= self.truth(paused_at) + pause_s:
+            obc -= pause_s
+        elif obc >= self.truth(paused_at):
+            return paused_at
         return round((obc - self.offset_s) / self.rate * 1e6)
 
     def delay(self) -> float:
@@ -76,7 +93,7 @@ class Link:
             t1 += self.command_period_s
             seq += 1
         for t1, seq, received, sent in commands:
-            tx_time_us = int(t1 * 1e6) % U32
+            tx_time_us = int(self.obc_clock(t1) * 1e6) % U32  # the FC echoes the OBC's stamp
             reply = TimeReply(seq, tx_time_us, received % U32, sent % U32)
             downlink.append((sent, encode_time_reply(reply)))
             self.events.append((t1, 0, "send", seq))
@@ -277,14 +294,14 @@ def test_obc_clock_step_between_round_trips_is_followed_not_averaged() -> None:
     """From some instant on, every OBC time is 3 ms later (the OBC clock stepped): the
     estimate is the old one until the step is confirmed, then the new one — never between."""
     step_s = 3e-3
-    link = Link(seed=6)
+    at = Link().truth(Link.fc_start_us) + 10.0
+    link = Link(seed=6, obc_step=(at, step_s))
     events = link.build(16.0)
-    at = link.truth(link.fc_start_us) + 10.0
     decoder = StateDecoder("twoway")
     sender = CommandSender(round_trips=decoder.round_trips)
     errors = []
     for t, _, kind, payload in events:
-        shifted = t + step_s if t >= at else t
+        shifted = link.obc_clock(t)
         if kind == "send":
             sender.next(RC, now=shifted)
             continue
@@ -300,6 +317,25 @@ def test_obc_clock_step_between_round_trips_is_followed_not_averaged() -> None:
     # in between each frame is on the old clock or the new one, never in the middle
     between = [min(abs(old), abs(new)) for t, old, new in errors if at <= t <= at + 3.0]
     assert max(between) < 0.5 * step_s
+
+
+@pytest.mark.parametrize("paused_after_s", [2.0, 10.0])
+def test_fc_clock_standing_still_is_followed_and_never_led(paused_after_s: float) -> None:
+    """The FC clock stands still for 0.3 s (a virtual FC re-anchoring its lockstep clock),
+    while the one-way line is still learning its rate or already locked: the estimate may lag
+    (the old mapping) until the step is seen, never run ahead of the truth, and is back
+    within its uncertainty once the round trips are."""
+    pause_s = 0.3
+    link = Link(seed=7, fc_pause=(Link.fc_start_us + round(paused_after_s * 1e6), pause_s))
+    result = run(link, 25.0)
+    clock = two_way(result.decoder)
+    assert clock.one_way.state.steps >= 1
+    start = link.truth(link.fc_start_us)
+    assert max(e for _, e, _ in result.errors) < 0.01 * pause_s  # never ahead of the truth
+    late = [(e, u) for t, e, u in result.errors if t > start + paused_after_s + pause_s + 8.0]
+    assert clock.two_way.active and late
+    assert all(abs(e) <= u + 1e-6 for e, u in late), max(abs(e) - u for e, u in late)
+    assert max(abs(e) for e, _ in late) < 60e-6
 
 
 def test_reply_decoded_without_e2_counts_one_chunk_and_loses_nothing() -> None:

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
+import platform
 import re
+import shutil
 import signal
 import socket
 import subprocess
@@ -12,11 +15,12 @@ import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import IO
 
 import pytest
 
 from wftool.errors import PortInUseError, SitlError
-from wftool.fc.msp import MspClient, RebootMode
+from wftool.fc.msp import Cmd, MspClient, RebootMode, encode_request
 from wftool.sitl.process import (
     LOOPBACK,
     MAX_PORT_BASE,
@@ -103,6 +107,36 @@ def test_wait_back_names_a_crash_instead_of_starting_again(virtual_fc: VirtualFC
     assert not virtual_fc.running
 
 
+@pytest.mark.parametrize("stage", ["_uart1_problem", "_loop_problem"])
+@pytest.mark.parametrize("ending", [signal.SIGFPE, signal.SIGTERM])
+def test_a_sitl_ending_while_it_starts_is_named_with_its_log(
+    sitl_binary: Path,
+    tmp_path: Path,
+    stage: str,
+    ending: signal.Signals,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The process ending while `start` waits for UART1 or for the PID loop over MSP — a
+    crash (SIGFPE), or a `stop()` from another thread (SIGTERM) — is said as such: how it
+    ended, and where its log is (not as the MSP client's lost peer, nor a bare assertion)."""
+    fc = VirtualFC(sitl_binary, tmp_path, port_base=None)
+    wait = getattr(VirtualFC, stage)
+
+    def end_first(self: VirtualFC, *args: object) -> str:
+        assert self._process is not None
+        if ending == signal.SIGTERM:
+            threading.Thread(target=self.stop).start()
+        else:
+            os.kill(self._process.pid, ending)
+        return wait(self, *args)
+
+    monkeypatch.setattr(VirtualFC, stage, end_first)
+    with pytest.raises(SitlError) as error:
+        fc.start()
+    assert str(error.value) == f"SITL ended with {ending.name} while starting: {fc.log_path}"
+    assert not fc.running
+
+
 def test_a_simulator_sending_while_the_fc_boots_does_not_crash_it(
     sitl_binary: Path, tmp_path: Path
 ) -> None:
@@ -132,6 +166,93 @@ def test_a_simulator_sending_while_the_fc_boots_does_not_crash_it(
         stop.set()
         sender.join()
         fc.stop()
+
+
+GDB = shutil.which("gdb")
+
+
+@pytest.mark.skipif(GDB is None, reason="needs gdb (scripts/setup installs it)")
+@pytest.mark.skipif(platform.machine() != "x86_64", reason="the pause reads an x86-64 register")
+def test_a_uart_takes_a_client_only_once_it_is_set_up(sitl_binary: Path, tmp_path: Path) -> None:
+    """The FC paused (gdb, the main thread alone) as it announces that UART1 listens; a client
+    connects and sends meanwhile, as one retrying while the FC restarts after a CLI `save`
+    does. serTcpOpen() listened before it set up the port's RX buffer, and the TCP thread
+    stored such bytes through a buffer of size 0: SIGFPE (about one boot in six with a client
+    that sends the instant it can connect)."""
+    base = free_port_base()
+    script = tmp_path / "pause.gdb"
+    script.write_text(
+        "set pagination off\nset confirm off\nset non-stop on\nset breakpoint pending on\n"
+        'break fprintf if $_streq((const char *)$rsi, "bind port %u for UART%u\\n")\n'
+        "run\ndelete\necho paused\\n\n"
+    )
+    gdb = subprocess.Popen(
+        [str(GDB), "-q", "-nx", "-x", script, "--args", sitl_binary, f"--port-base={base}",
+         f"--sim-port-base={base + SIM_PORT_OFFSET}", "--exit-with-parent"],
+        cwd=tmp_path, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+    )  # fmt: skip
+    assert gdb.stdin is not None and gdb.stdout is not None
+    said = bytearray()
+
+    def read(output: IO[bytes]) -> None:
+        while chunk := os.read(output.fileno(), 4096):
+            said.extend(chunk)
+
+    reader = threading.Thread(target=read, args=(gdb.stdout,))
+    reader.start()
+    reply = b""
+    try:
+        assert wait_for(lambda: b"paused" in said, 30), said.decode(errors="replace")
+        with socket.create_connection((LOOPBACK, base + 1), timeout=10) as client:
+            client.sendall(encode_request(Cmd.STATUS))
+            time.sleep(0.3)  # the TCP thread accepts and reads while the main thread waits
+            gdb.stdin.write(b"continue -a\n")
+            gdb.stdin.flush()
+            with contextlib.suppress(OSError):
+                reply = client.recv(4096)
+        crash = re.findall(rb"received signal \w+", said) or [bytes(said[-300:])]
+        assert reply.startswith(b"$X>"), f"no reply: {crash[-1].decode(errors='replace')}"
+    finally:
+        gdb.kill()
+        gdb.wait()
+        reader.join()
+
+
+@pytest.mark.skipif(GDB is None, reason="needs gdb (scripts/setup installs it)")
+@pytest.mark.skipif(platform.machine() != "x86_64", reason="the stall reads an x86-64 register")
+def test_a_host_stall_before_lockstep_leaves_the_pid_loop_at_its_rate(
+    sitl_binary: Path, tmp_path: Path
+) -> None:
+    """The FC stopped (gdb) for 50 ms between its first gyro run and the start of lockstep
+    (at its `prctl(PR_SET_TIMERSLACK)`), as a loaded host may: the scheduler, 400 gyro periods
+    behind, recovered to a target between two gyro samples that the lockstep clock never
+    reached, and the PID loop stalled (MSP PID cycle ~45 ms, about one start in 10-25 under
+    load). It must run every gyro period."""
+    base = free_port_base()
+    script = tmp_path / "stall.gdb"
+    script.write_text(
+        "set pagination off\nset confirm off\nbreak prctl if $rdi == 29\n"
+        "commands\nsilent\nshell sleep 0.05\ndelete\ncontinue\nend\nrun\n"
+    )
+    log = tmp_path / "gdb.log"
+    with log.open("wb") as output:
+        gdb = subprocess.Popen(
+            [str(GDB), "-q", "-nx", "-batch", "-x", script, "--args", sitl_binary,
+             f"--port-base={base}", f"--sim-port-base={base + SIM_PORT_OFFSET}",
+             "--exit-with-parent"],
+            cwd=tmp_path, stdin=subprocess.DEVNULL, stdout=output, stderr=subprocess.STDOUT,
+        )  # fmt: skip
+    try:
+        assert wait_for(lambda: b"reason=start" in log.read_bytes(), 30), log.read_text()[-500:]
+        with MspClient.open(uart_url(1, base)) as msp:
+            cycles = set()
+            for _ in range(20):
+                cycles.add(msp.pid_cycle_us())
+                time.sleep(0.05)
+        assert cycles == {125}, f"PID cycles (us) after the stall: {sorted(cycles)}"
+    finally:
+        gdb.kill()
+        gdb.wait()
 
 
 def test_the_sitl_says_how_late_the_host_ran_it(virtual_fc: VirtualFC) -> None:

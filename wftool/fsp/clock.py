@@ -349,7 +349,9 @@ class EnvelopeClockEstimator:
     consecutive buckets, from distinct reads, whose lowest point stays far above the line are
     a forward step (or the FC clock stood still); one read carrying many buckets is an OBC
     stall, not a step. The offset restarts from the points after the step, the rate from
-    before it is kept (a property of the two crystals), and the step is counted. Smaller
+    before it is kept (a property of the two crystals), and the step is counted. A step
+    while the rate was still being learnt (unseen then: its window spans the step, so the
+    first rate is wrong) leaves no rate to keep: it is learnt again after the step. Smaller
     steps than the thresholds pass as a change of delay: the line follows within a window,
     off by at most the step meanwhile. `reset` (FC reboot, reconnect) forgets everything.
 
@@ -396,10 +398,11 @@ class EnvelopeClockEstimator:
         self._drift = self.DRIFT_PPM_PER_MIN / 60.0  # µs/s²
         self._lock_span_us = round(self.LOCK_SPAN_S * 1e6)
         self._offset_span_us = round(self.OFFSET_SPAN_S * 1e6)
+        self._trust_us = self.STEP_READS * self._bucket_us
         self._max_slope = self.MAX_RATE_PPM * 1e-6
         self._pending: deque[tuple[int, float, float]] = deque()
-        self._slopes: deque[tuple[int, float]] = deque(maxlen=16)
-        """(last u, slope) of recent fits: a step restores the rate from before it."""
+        self._slopes: deque[tuple[int, float, bool]] = deque(maxlen=16)
+        """(last u, slope, trusted) of recent fits: a step keeps a trusted rate from before it."""
         self.reset()
 
     def reset(self) -> None:
@@ -408,6 +411,9 @@ class EnvelopeClockEstimator:
         self._slope = 0.0
         self._slopes.clear()
         self._rate_known = False
+        self._rate_since_u = 0
+        """Where the rate became known: a step seen before STEP_READS buckets more may lie
+        within the window it came from (unseen then), so that rate is not kept through it."""
         self._rate_span_us = self._lock_span_us  # the window's own rate counts from this span
         self._window_us = self._window_us_range[1]
         self._above_us = self.STEP_ABOVE_S * 1e6
@@ -493,13 +499,16 @@ class EnvelopeClockEstimator:
         first_u = window.points[0][0]
         span = window.points[-1][0] - first_u
         slope = self._slope
+        last_u = window.points[-1][0]
         if len(window.hull) >= 2 and (span >= self._rate_span_us or not self._rate_known):
             slope = window.slope_at(first_u + self.SUPPORT_AT * span)
-            self._rate_known = self._rate_known or span >= self._rate_span_us
+            if not self._rate_known and span >= self._rate_span_us:
+                self._rate_known, self._rate_since_u = True, last_u
             if not self._rate_known:
                 slope = max(-self._max_slope, min(self._max_slope, slope))
         self._slope = slope
-        self._slopes.append((window.points[-1][0], slope))
+        trusted = self._rate_known and last_u - self._rate_since_u >= self._trust_us
+        self._slopes.append((last_u, slope, trusted))
         self._intercept = window.intercept(slope)
         self._fits += 1
         if self._fits % 16 == 0:
@@ -575,12 +584,18 @@ class EnvelopeClockEstimator:
         """Start over from `points` after a step first seen at `since_u`."""
         self.steps += 1
         self.reinits += 1
-        for fit_u, slope in reversed(self._slopes):  # the rate before fits saw the step
+        kept = False
+        for fit_u, slope, trusted in reversed(self._slopes):  # the rate before fits saw it
             if fit_u < since_u:
-                self._slope = slope
+                kept = trusted
+                if trusted:
+                    self._slope = slope
+                    self._rate_span_us = self._window_us  # kept until the new window is as long
                 break
-        if self._rate_known:  # keep the rate until the new window is as long as the old
-            self._rate_span_us = self._window_us
+        if not kept:  # a rate learnt across the step, or none: learn it from the points after
+            self._slope = 0.0
+            self._rate_known = False
+            self._rate_span_us = self._lock_span_us
         self._restart(points, u, obc_time)
 
     def track(self, fc_time_us: np.ndarray, obc_time: np.ndarray, at_us: np.ndarray) -> np.ndarray:

@@ -168,6 +168,8 @@ class TwoWayClockEstimator:
 
     def observe(self, fc_time_us: int, obc_time: float) -> None:
         self.one_way.observe(fc_time_us, obc_time)
+        if self._delay == self._delay and self.one_way.state.reinits != self._line_steps:
+            self._clear()  # d_min was measured against the line before its step: not this one
 
     def to_obc(self, fc_time_us: int) -> float | None:
         line = self.one_way.to_obc(fc_time_us)

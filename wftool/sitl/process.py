@@ -16,7 +16,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from wftool.errors import PortInUseError, SitlError
+from wftool.errors import PortInUseError, SitlError, WftoolError
 from wftool.fc.msp import MspClient
 
 LOOPBACK = "127.0.0.1"
@@ -122,6 +122,14 @@ def free_port_base(start: int = 20000, stop: int = 32700, step: int = 50) -> int
     raise SitlError(f"no free port base between {start} and {stop}")
 
 
+def _ended(process: subprocess.Popen[bytes], within: float) -> int | None:
+    """`process`'s exit status once it has ended within `within` s, else None."""
+    try:
+        return process.wait(within)
+    except subprocess.TimeoutExpired:
+        return None
+
+
 class VirtualFC:
     """A SITL binary running in `workdir`, restartable, never left behind.
 
@@ -149,7 +157,8 @@ class VirtualFC:
         self.starts = 0
         """Successful starts so far (a restart after a reset counts, a retried start not)."""
         self._process: subprocess.Popen[bytes] | None = None
-        self._start_offset = 0
+        self.log_offset = 0
+        """Where the output of the latest process started begins in `log_path`."""
 
     @property
     def port_base(self) -> int:
@@ -203,9 +212,15 @@ class VirtualFC:
         self.workdir.mkdir(parents=True, exist_ok=True)
         problem = ""
         for _attempt in range(START_ATTEMPTS):
-            self._spawn()
+            process = self._spawn()
             try:
-                problem = self._uart1_problem() or self._loop_problem()
+                problem = self._uart1_problem(process) or self._loop_problem()
+            except WftoolError as exc:
+                status = None if isinstance(exc, SitlError) else _ended(process, 1.0)
+                self.stop()
+                if status is not None:
+                    raise self._died(status) from exc  # MSP lost its peer: say why
+                raise
             except BaseException:
                 self.stop()
                 raise
@@ -214,6 +229,9 @@ class VirtualFC:
                 return
             self.stop()
         raise SitlError(f"{problem} ({START_ATTEMPTS} attempts; see {self.log_path})")
+
+    def _died(self, status: int) -> SitlError:
+        return SitlError(f"SITL ended with {exit_status(status)} while starting: {self.log_path}")
 
     def _argv(self) -> list[str]:
         return [
@@ -224,11 +242,11 @@ class VirtualFC:
             *self.board.argv(),
         ]
 
-    def _spawn(self) -> None:
-        self._start_offset = self.log_path.stat().st_size if self.log_path.exists() else 0
+    def _spawn(self) -> subprocess.Popen[bytes]:
+        self.log_offset = self.log_path.stat().st_size if self.log_path.exists() else 0
         with self.log_path.open("ab") as log:
             try:
-                self._process = subprocess.Popen(
+                process = subprocess.Popen(
                     self._argv(),
                     cwd=self.workdir,
                     stdin=subprocess.DEVNULL,
@@ -238,11 +256,14 @@ class VirtualFC:
                 )
             except OSError as exc:
                 raise SitlError(f"cannot run SITL binary {self.binary}: {exc.strerror}") from exc
+        self._process = process
+        return process
 
-    def _uart1_problem(self) -> str:
+    def _uart1_problem(self, process: subprocess.Popen[bytes]) -> str:
         """Why UART1 is not usable yet, or "" once a probe connection came and went."""
         port = self.port_base + 1
-        listening = self._await_log(f"bind port {port} for UART1".encode(), self.ready_timeout)
+        marker = f"bind port {port} for UART1".encode()
+        listening = self._await_log(marker, self.ready_timeout, process=process)
         if listening is None:
             return f"SITL did not open UART1 within {self.ready_timeout:.0f} s"
         if f"bind port {port} for UART1 failed".encode() in listening:
@@ -250,12 +271,14 @@ class VirtualFC:
         offset = self.log_path.stat().st_size
         try:
             with socket.create_connection((LOOPBACK, port), timeout=1):
-                accepted = self._await_log(b"[NEW]UART1", ACCEPT_TIMEOUT_S, offset)
+                accepted = self._await_log(b"[NEW]UART1", ACCEPT_TIMEOUT_S, offset, process=process)
         except OSError as exc:
+            if (status := process.poll()) is not None:
+                raise self._died(status) from exc
             return f"SITL's UART1 refused a connection: {exc.strerror or exc}"
         if accepted is None:
             return "SITL's UART1 listens but never accepts"
-        if self._await_log(b"[CLS]UART1", ACCEPT_TIMEOUT_S, offset) is None:
+        if self._await_log(b"[CLS]UART1", ACCEPT_TIMEOUT_S, offset, process=process) is None:
             return "SITL's UART1 did not notice the probe connection closing"
         return ""
 
@@ -273,12 +296,22 @@ class VirtualFC:
         """Run `close` (which closes this program's connection to UARTn) and wait until SITL
         has released it (`[CLS]UARTn`): a connection made before that is dropped at once."""
         offset = self.log_path.stat().st_size
+        process = self._process
         close()
-        return self._await_log(f"[CLS]UART{uart}".encode(), timeout, offset) is not None
+        if process is None:
+            return True
+        try:
+            closed = self._await_log(f"[CLS]UART{uart}".encode(), timeout, offset, process=process)
+        except SitlError:
+            return True  # it ended: nothing holds the connection (how it ended is for wait_back)
+        return closed is not None
 
-    def _await_log(self, marker: bytes, timeout: float, offset: int = 0) -> bytes | None:
-        """The log from `offset` (default: this start) once it holds `marker`, else None."""
-        offset = offset or self._start_offset
+    def _await_log(
+        self, marker: bytes, timeout: float, offset: int = 0, *, process: subprocess.Popen[bytes]
+    ) -> bytes | None:
+        """The log from `offset` (default: this start) once it holds `marker`, else None;
+        `process` ending first is a SitlError naming how it ended."""
+        offset = offset or self.log_offset
         deadline = time.monotonic() + timeout
         while True:
             with self.log_path.open("rb") as log:
@@ -286,13 +319,8 @@ class VirtualFC:
                 text = log.read()
             if marker in text:
                 return text
-            assert self._process is not None
-            status = self._process.poll()
-            if status is not None:
-                self._process = None
-                raise SitlError(
-                    f"SITL ended with {exit_status(status)} while starting: {self.log_path}"
-                )
+            if (status := process.poll()) is not None:
+                raise self._died(status)
             if time.monotonic() > deadline:
                 return None
             time.sleep(0.01)
