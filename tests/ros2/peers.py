@@ -183,6 +183,9 @@ def _command(topic: str, plan: list[dict[str, Any]], seconds: float) -> None:
             return
         time.sleep(0.02)
     print("matched", flush=True)
+    # Each side discovers the other on its own: this writer has matched the node's reader, but
+    # a best-effort reader drops what comes from a writer it has not matched yet (Fast DDS).
+    time.sleep(1.0)
     stamp_ns = 0
     for step in plan:
         time.sleep(step.get("after_s", 0.0))
