@@ -9,8 +9,8 @@
 support decodes), reliable QoS (TOPIC=TYPE=latest: the latest only, transient local, as a
 late joiner asks for what was published before it), every message written to OUT as a JSON line
 {"topic", "received_ns", "message"} when it ends (SECONDS after every topic has a
-publisher, IDLE_S after the last message, or at SIGTERM); it prints "ready" once subscribed,
-"matched" once every topic has a publisher.
+publisher, IDLE_S after the last message, at SIGTERM, or when no publisher is found within
+DISCOVERY_S); it prints "ready" once subscribed, "matched" once every topic has a publisher.
 `publish` plays a recording's messages as `ros2 bag play` would: the stored CDR bytes,
 as they are, on each topic (under NAMESPACE) with its type, once every topic is matched.
 `command` is a ROS 2 program commanding the aircraft: it publishes `wftool_msgs/RcCommand`
@@ -43,6 +43,9 @@ REPO = Path(__file__).resolve().parents[2]
 QOS_DEPTH = 10_000
 IDLE_S = 3.0
 """A subscriber stops this long after the last message."""
+DISCOVERY_S = 30.0
+"""A subscriber waits this long for its publishers: after its first few announcements Fast DDS
+announces every 3 s, and a loaded host can miss the first few."""
 
 
 def namespace_of(tmp_path: Path) -> str:
@@ -117,7 +120,7 @@ def _subscribe(out: Path, seconds: float, topics: list[str]) -> None:
     executor.add_node(node)
     print("ready", flush=True)
     matched = False
-    end = time.monotonic() + seconds
+    end = time.monotonic() + max(seconds, DISCOVERY_S)  # discovery is not part of the stream
     while time.monotonic() < end and not ending:
         executor.spin_once(timeout_sec=0.05)
         if not matched and all(s.get_publisher_count() for s in subscriptions):
