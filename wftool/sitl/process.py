@@ -18,6 +18,7 @@ from pathlib import Path
 
 from wftool.errors import PortInUseError, SitlError, WftoolError
 from wftool.fc.msp import MspClient
+from wftool.sitl.crash import crash_report
 
 LOOPBACK = "127.0.0.1"
 DEFAULT_PORT_BASE = 5760
@@ -231,7 +232,16 @@ class VirtualFC:
         raise SitlError(f"{problem} ({START_ATTEMPTS} attempts; see {self.log_path})")
 
     def _died(self, status: int) -> SitlError:
-        return SitlError(f"SITL ended with {exit_status(status)} while starting: {self.log_path}")
+        return SitlError(f"SITL ended with {self._ending(status)} while starting: {self.log_path}")
+
+    def _ending(self, status: int) -> str:
+        """How the latest process ended, with what it said of a fatal signal."""
+        report = ""
+        if status < 0 and self.log_path.exists():
+            with self.log_path.open("rb") as log:
+                log.seek(self.log_offset)
+                report = crash_report(log.read(), self.binary)
+        return f"{exit_status(status)} ({report})" if report else exit_status(status)
 
     def _argv(self) -> list[str]:
         return [
@@ -358,7 +368,7 @@ class VirtualFC:
                 raise SitlError(f"SITL did not reset within {timeout:.0f} s") from exc
             self._process = None
             if status != 0:  # a reset exits with 0: anything else is a crash, not to be hidden
-                raise SitlError(f"SITL ended with {exit_status(status)} instead of resetting: "
+                raise SitlError(f"SITL ended with {self._ending(status)} instead of resetting: "
                                 f"{self.log_path}")  # fmt: skip
         self.start()
 
