@@ -26,8 +26,11 @@ def crash_report(log: bytes, binary: Path) -> str:
     trampoline = next((i for i, (module, _) in enumerate(frames) if module != frames[0][0]), None)
     if trampoline is None:
         return said
-    offsets = [int(offset, 16) for module, offset in frames[trampoline + 1 :]
-               if module == frames[0][0]][:STACK_DEPTH]  # fmt: skip
+    offsets = []
+    for module, offset in frames[trampoline + 1 :]:
+        if module != frames[0][0] or len(offsets) == STACK_DEPTH:
+            break  # on into the C library's start: the firmware's stack ends at main
+        offsets.append(int(offset, 16))
     names = _function_names(binary, offsets)
     return f"{said} in {' < '.join(names)}" if names else said
 
