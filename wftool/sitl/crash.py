@@ -26,7 +26,7 @@ def crash_report(log: bytes, binary: Path) -> str:
     trampoline = next((i for i, (module, _) in enumerate(frames) if module != frames[0][0]), None)
     if trampoline is None:
         return said
-    offsets = []
+    offsets: list[int] = []
     for module, offset in frames[trampoline + 1 :]:
         if module != frames[0][0] or len(offsets) == STACK_DEPTH:
             break  # on into the C library's start: the firmware's stack ends at main
