@@ -151,10 +151,12 @@ class EmulatedBootloader:
             assert self._process.stdin is not None
             self._process.stdin.close()
             try:
-                self._process.wait(5)
+                status = self._process.wait(5)
             except subprocess.TimeoutExpired:
                 self._process.kill()
                 self._process.wait()
+            else:  # a host that crashed as it ended (a fatal GLib error) is seen here
+                assert status == 0, f"the USB host ended with status {status}: {self.log_path}"
         assert self._process.stdout is not None
         self._process.stdout.close()
         self._log.close()
