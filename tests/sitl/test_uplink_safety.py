@@ -126,7 +126,8 @@ def test_the_pilots_sticks_are_back_within_the_limit(piloted: Flight, failure: s
         time.sleep(0.5)  # the failure goes on: the pilot keeps the sticks, armed, no RXLOSS
         after = watcher.since(back.t)
         assert all(near(s.rc[:STICKS], pilot_rc[:STICKS]) for s in after)
-        assert all(s.armed and not s.rx_loss and not s.failsafe for s in after)
+        fallen = [s for s in after if not s.armed or s.rx_loss or s.failsafe]
+        assert not fallen, f"{len(fallen)} of {len(after)}, first {fallen[0]} ({back.t=})"
         roll = pilot_rc[0] + 120  # and the FC flies the pilot's sticks
         piloted.session.radio.set(roll=roll)
         assert watcher.wait(lambda s: s.rc[0] == roll, time.monotonic(), 1.0)

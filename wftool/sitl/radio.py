@@ -3,14 +3,22 @@
 Patch 0017 makes the simulator's RC port (UDP sim base + 4) a receiver like a board's radio:
 each packet (a double timestamp, 16 u16 channels in raw order) is one receiver frame, and
 150 ms without one is RX loss. `SimulatedRadio` sends the channels it holds at a radio's
-frame rate from a daemon thread; a test or `wftool preflight` moves the sticks and flips the
-switches with `set`, and takes the radio away with `transmitting(False)`.
+frame rate from a process of its own (as a radio does not stall when the program holding it
+does), until stopped or its parent ends; a test or `wftool preflight` moves the sticks and
+flips the switches with `set`, and takes the radio away with `transmitting(False)`.
+
+    python -m wftool.sitl.radio PORT RATE_HZ    # the transmitter: state lines on stdin
 """
 
 from __future__ import annotations
 
+import json
+import os
+import selectors
 import socket
 import struct
+import subprocess
+import sys
 import threading
 import time
 from collections.abc import Mapping
@@ -19,6 +27,7 @@ from wftool.sitl.process import LOOPBACK
 
 RC_CHANNELS = 16
 _RC_PACKET = struct.Struct(f"<d{RC_CHANNELS}H")
+STDIN = 0
 DEFAULT_RATE_HZ = 100.0
 """Frames per second: an SBUS or CRSF radio's order of magnitude."""
 
@@ -53,18 +62,15 @@ class SimulatedRadio:
     def __init__(self, port: int, rate_hz: float = DEFAULT_RATE_HZ) -> None:
         """`port`: SITL's RC input (`VirtualFC.sim_rc_port`)."""
         self._port = port
-        self._period = 1.0 / rate_hz
+        self._rate_hz = rate_hz
         self._lock = threading.Lock()
         self._channels = neutral_channels()
-        self._on = threading.Event()
-        self._on.set()
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="sitl-radio", daemon=True)
-        self.frames_sent = 0
+        self._on = True
+        self._process: subprocess.Popen[str] | None = None
 
     @property
     def frame_period_s(self) -> float:
-        return self._period
+        return 1.0 / self._rate_hz
 
     @property
     def channels(self) -> tuple[int, ...]:
@@ -79,21 +85,35 @@ class SimulatedRadio:
         with self._lock:
             for index, value in indices.items():
                 self._channels[index] = value
+            self._tell()
 
     def transmitting(self, on: bool) -> None:
         """Switch the transmitter on or off (off: no frames, the FC's RX loss follows)."""
-        if on:
-            self._on.set()
-        else:
-            self._on.clear()
+        with self._lock:
+            self._on = on
+            self._tell()
 
     def start(self) -> SimulatedRadio:
-        self._thread.start()
+        command = [sys.executable, "-m", "wftool.sitl.radio", str(self._port), str(self._rate_hz)]
+        with self._lock:
+            self._process = subprocess.Popen(  # its own session: a Ctrl-C is for the program
+                command, stdin=subprocess.PIPE, text=True, start_new_session=True
+            )
+            self._tell()
         return self
 
     def stop(self) -> None:
-        self._stop.set()
-        self._thread.join(2.0)
+        with self._lock:
+            process, self._process = self._process, None
+        if process is None:
+            return
+        assert process.stdin is not None
+        try:
+            process.stdin.close()  # the transmitter ends at the end of its input
+            process.wait(2.0)
+        except (OSError, subprocess.TimeoutExpired):
+            process.kill()
+            process.wait()
 
     def __enter__(self) -> SimulatedRadio:
         return self.start()
@@ -101,20 +121,42 @@ class SimulatedRadio:
     def __exit__(self, *exc_info: object) -> None:
         self.stop()
 
-    def _run(self) -> None:
-        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-            start = next_send = time.monotonic()
-            while not self._stop.is_set():
-                if self._on.is_set():
-                    with self._lock:
-                        packet = _RC_PACKET.pack(time.monotonic() - start, *self._channels)
-                    sock.sendto(packet, (LOOPBACK, self._port))
-                    self.frames_sent += 1
-                next_send += self._period
-                delay = next_send - time.monotonic()
-                if delay < -self._period:  # the host stalled: no burst of stale frames
-                    next_send = time.monotonic()
-                self._stop.wait(max(0.0, delay))
+    def _tell(self) -> None:
+        """Hand the state to the transmitter. Called with the lock held."""
+        if self._process is None or self._process.stdin is None:
+            return
+        state = json.dumps({"channels": self._channels, "on": self._on})
+        self._process.stdin.write(state + "\n")
+        self._process.stdin.flush()
+
+
+def transmit(port: int, rate_hz: float) -> None:
+    """The transmitter: a frame every 1/`rate_hz` s with the latest state read from stdin (a
+    JSON line {"channels", "on"}), until stdin ends (stopped, or its parent gone)."""
+    period = 1.0 / rate_hz
+    channels, on = neutral_channels(), True
+    pending = b""
+    with (
+        socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock,
+        selectors.DefaultSelector() as sel,
+    ):
+        sel.register(STDIN, selectors.EVENT_READ)
+        start = next_send = time.monotonic()
+        while True:
+            if sel.select(max(0.0, next_send - time.monotonic())):
+                chunk = os.read(STDIN, 65536)  # unbuffered: a selector sees what is left
+                if not chunk:
+                    return
+                *lines, pending = (pending + chunk).split(b"\n")
+                if lines:
+                    state = json.loads(lines[-1])
+                    channels, on = state["channels"], state["on"]
+                continue
+            if on:
+                sock.sendto(_RC_PACKET.pack(time.monotonic() - start, *channels), (LOOPBACK, port))
+            next_send += period
+            if next_send < time.monotonic() - period:  # the host stalled: no burst of stale frames
+                next_send = time.monotonic()
 
 
 class SimulatedPilot:
@@ -140,3 +182,7 @@ class SimulatedPilot:
     def transmitter(self, on: bool) -> bool:
         self.radio.transmitting(on)
         return True
+
+
+if __name__ == "__main__":
+    transmit(int(sys.argv[1]), float(sys.argv[2]))

@@ -1,0 +1,110 @@
+"""The virtual FC's simulated radio, heard on a UDP socket as SITL's RC input hears it."""
+
+from __future__ import annotations
+
+import itertools
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+
+import pytest
+
+from wftool.sitl.radio import _RC_PACKET, MID, SimulatedRadio, channel_index
+
+
+@pytest.fixture
+def rc_input() -> Iterator[socket.socket]:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        sock.settimeout(2.0)
+        yield sock
+
+
+def frame(sock: socket.socket) -> tuple[float, tuple[int, ...]]:
+    """The next frame: the transmitter's clock (s), the channels."""
+    sent, *channels = _RC_PACKET.unpack(sock.recv(_RC_PACKET.size))
+    return sent, tuple(channels)
+
+
+def test_frames_come_at_the_rate_and_carry_what_was_set(rc_input: socket.socket) -> None:
+    with SimulatedRadio(rc_input.getsockname()[1], rate_hz=100.0) as radio:
+        _, channels = frame(rc_input)
+        assert channels[channel_index("roll")] == MID
+        radio.set(roll=1234, aux2=2000)
+        time.sleep(2 * radio.frame_period_s)
+        _, channels = frame(rc_input)
+        assert channels[channel_index("roll")] == 1234 and channels[channel_index("aux2")] == 2000
+        assert radio.channels == channels
+        times = [frame(rc_input)[0] for _ in range(50)]
+        gaps = [b - a for a, b in itertools.pairwise(times)]
+        assert sum(gaps) / len(gaps) == pytest.approx(0.010, abs=0.001)
+
+
+def test_a_transmitter_off_is_silent_until_on_again(rc_input: socket.socket) -> None:
+    with SimulatedRadio(rc_input.getsockname()[1]) as radio:
+        frame(rc_input)
+        radio.transmitting(False)
+        time.sleep(0.05)
+        rc_input.settimeout(0.0)
+        while True:  # what was on its way
+            try:
+                rc_input.recv(_RC_PACKET.size)
+            except BlockingIOError:
+                break
+        rc_input.settimeout(0.3)
+        with pytest.raises(TimeoutError):
+            rc_input.recv(_RC_PACKET.size)
+        radio.transmitting(True)
+        rc_input.settimeout(1.0)
+        frame(rc_input)
+
+
+def test_the_radio_keeps_sending_while_its_holder_stalls(rc_input: socket.socket) -> None:
+    """A radio does not stall when the program holding it does: one C call holding the
+    interpreter's lock for ~0.3 s (as a garbage collection late in a long session can) left
+    the FC without frames past its 150 ms RX loss limit when the radio was a thread."""
+    with SimulatedRadio(rc_input.getsockname()[1]) as radio:
+        frame(rc_input)
+        start = time.monotonic()
+        sum(range(30_000_000))  # holds the lock throughout
+        stalled = time.monotonic() - start
+        time.sleep(5 * radio.frame_period_s)
+        rc_input.settimeout(0.0)
+        times = []
+        while True:
+            try:
+                times.append(frame(rc_input)[0])
+            except BlockingIOError:
+                break
+    assert stalled > 0.15, "the stall was too short to tell"
+    gaps = [b - a for a, b in itertools.pairwise(times)]
+    assert len(times) >= stalled / radio.frame_period_s * 0.8 and max(gaps) < 0.05, max(gaps)
+
+
+def test_the_transmitter_ends_when_its_holder_is_killed(rc_input: socket.socket) -> None:
+    port = rc_input.getsockname()[1]
+    holder = subprocess.Popen(
+        [sys.executable, "-c",
+         "import sys, time\nfrom wftool.sitl.radio import SimulatedRadio\n"
+         f"radio = SimulatedRadio({port}).start()\n"
+         "print(radio._process.pid, flush=True)\ntime.sleep(60)\n"],
+        stdout=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    assert holder.stdout is not None
+    transmitter = int(holder.stdout.readline())
+    frame(rc_input)
+    os.kill(holder.pid, signal.SIGKILL)
+    holder.wait()
+    deadline = time.monotonic() + 5.0
+    while time.monotonic() < deadline:
+        try:
+            os.kill(transmitter, 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.02)
+    else:
+        pytest.fail("the transmitter outlived the program holding it")
