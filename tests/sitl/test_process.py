@@ -173,6 +173,28 @@ def test_a_simulator_sending_while_the_fc_boots_does_not_crash_it(
 GDB = shutil.which("gdb")
 
 
+@contextlib.contextmanager
+def sitl_in_gdb(sitl_binary: Path, tmp_path: Path, script: str) -> Iterator[tuple[int, Path]]:
+    """SITL on a free port base, run by gdb (batch) with `script`: (its port base, gdb's log
+    with SITL's output); gdb and SITL are killed at the end."""
+    base = free_port_base()
+    script_path = tmp_path / "sitl.gdb"
+    script_path.write_text(script)
+    log = tmp_path / "gdb.log"
+    with log.open("wb") as output:
+        gdb = subprocess.Popen(
+            [str(GDB), "-q", "-nx", "-batch", "-x", script_path, "--args", sitl_binary,
+             f"--port-base={base}", f"--sim-port-base={base + SIM_PORT_OFFSET}",
+             "--exit-with-parent"],
+            cwd=tmp_path, stdin=subprocess.DEVNULL, stdout=output, stderr=subprocess.STDOUT,
+        )  # fmt: skip
+    try:
+        yield base, log
+    finally:
+        gdb.kill()
+        gdb.wait()
+
+
 @pytest.mark.skipif(GDB is None, reason="needs gdb (scripts/setup installs it)")
 def test_a_crash_names_where_it_hit(virtual_fc: VirtualFC) -> None:
     """A fault in the running FC (gdb zeroes the PID loop denominator the gyro task divides
@@ -256,21 +278,11 @@ def test_a_host_stall_before_lockstep_leaves_the_pid_loop_at_its_rate(
     behind, recovered to a target between two gyro samples that the lockstep clock never
     reached, and the PID loop stalled (MSP PID cycle ~45 ms, about one start in 10-25 under
     load). It must run every gyro period."""
-    base = free_port_base()
-    script = tmp_path / "stall.gdb"
-    script.write_text(
+    script = (
         "set pagination off\nset confirm off\nbreak prctl if $rdi == 29\n"
         "commands\nsilent\nshell sleep 0.05\ndelete\ncontinue\nend\nrun\n"
     )
-    log = tmp_path / "gdb.log"
-    with log.open("wb") as output:
-        gdb = subprocess.Popen(
-            [str(GDB), "-q", "-nx", "-batch", "-x", script, "--args", sitl_binary,
-             f"--port-base={base}", f"--sim-port-base={base + SIM_PORT_OFFSET}",
-             "--exit-with-parent"],
-            cwd=tmp_path, stdin=subprocess.DEVNULL, stdout=output, stderr=subprocess.STDOUT,
-        )  # fmt: skip
-    try:
+    with sitl_in_gdb(sitl_binary, tmp_path, script) as (base, log):
         assert wait_for(lambda: b"reason=start" in log.read_bytes(), 30), log.read_text()[-500:]
         with MspClient.open(uart_url(1, base)) as msp:
             cycles = set()
@@ -278,9 +290,6 @@ def test_a_host_stall_before_lockstep_leaves_the_pid_loop_at_its_rate(
                 cycles.add(msp.pid_cycle_us())
                 time.sleep(0.05)
         assert cycles == {125}, f"PID cycles (us) after the stall: {sorted(cycles)}"
-    finally:
-        gdb.kill()
-        gdb.wait()
 
 
 @pytest.mark.skipif(GDB is None, reason="needs gdb (scripts/setup installs it)")
@@ -292,23 +301,13 @@ def test_a_first_pass_that_runs_the_gyro_at_once_leaves_the_fc_running(
     it so, then puts it back). The late-task statistics, due in that pass before any other
     task had run, divided by zero tasks run: SIGFPE, the log ending before the lockstep's
     start (about one boot in a few hundred under load)."""
-    base = free_port_base()
-    script = tmp_path / "first.gyro.gdb"
-    script.write_text(
+    script = (
         "set pagination off\nset confirm off\nbreak scheduler\nrun\n"
         "set $window = *(int *)&schedLoopStartCycles\n"
         "set var *(int *)&schedLoopStartCycles = 1000000000\ncontinue\n"
         "set var *(int *)&schedLoopStartCycles = $window\ndelete\ncontinue\n"
     )
-    log = tmp_path / "gdb.log"
-    with log.open("wb") as output:
-        gdb = subprocess.Popen(
-            [str(GDB), "-q", "-nx", "-batch", "-x", script, "--args", sitl_binary,
-             f"--port-base={base}", f"--sim-port-base={base + SIM_PORT_OFFSET}",
-             "--exit-with-parent"],
-            cwd=tmp_path, stdin=subprocess.DEVNULL, stdout=output, stderr=subprocess.STDOUT,
-        )  # fmt: skip
-    try:
+    with sitl_in_gdb(sitl_binary, tmp_path, script) as (base, log):
         wait_for(lambda: re.search(rb"reason=start|received signal", log.read_bytes()), 30)
         crash = re.findall(rb"received signal \w+", log.read_bytes())
         assert b"reason=start" in log.read_bytes() and not crash, (
@@ -316,9 +315,6 @@ def test_a_first_pass_that_runs_the_gyro_at_once_leaves_the_fc_running(
         )[-1].decode()
         with MspClient.open(uart_url(1, base)) as msp:
             assert msp.pid_cycle_us() == 125
-    finally:
-        gdb.kill()
-        gdb.wait()
 
 
 def test_the_sitl_says_how_late_the_host_ran_it(virtual_fc: VirtualFC) -> None:
