@@ -18,7 +18,7 @@ PACKAGE = Path(__file__).parent.parent / "wftool"
 LAYERS: tuple[tuple[str, ...], ...] = (
     ("wftool",),  # the package itself: __version__
     ("errors",),
-    ("extras", "progress", "interrupts", "display"),
+    ("extras", "progress", "interrupts", "display", "stats"),
     ("link",),  # the byte transport and the CRC both protocols share
     ("fsp",),  # the OBC library
     ("fc", "firmware"),

@@ -11,7 +11,7 @@ from tests.fsp.test_twoway import RC, Link
 from wftool.fsp import CommandOutcome, CommandPacket, CommandReport, StatePacket, UplinkFlag
 from wftool.fsp.encoder import encode_command_report, encode_state
 from wftool.verify.criteria import Criteria, judge
-from wftool.verify.monitor import HealthSampler, IntervalHistogram, StreamMonitor
+from wftool.verify.monitor import HealthSampler, StreamMonitor
 from wftool.verify.uplink import UplinkTracker, pattern_command
 
 PACKET_S = 2 * 953e-6
@@ -26,16 +26,6 @@ def feed_steady(monitor: StreamMonitor, indices, t0: float, chunk: int = 10) -> 
         t = t0 + (part[-1] + 1) * PACKET_S
         monitor.feed(stream(part, e1=True), t)
     return t
-
-
-def test_histogram_percentiles():
-    histogram = IntervalHistogram()
-    for value in range(1, 101):
-        histogram.add(value)
-    summary = histogram.summary()
-    assert (summary.p1_us, summary.p50_us, summary.p99_us) == (1, 50, 99)  # nearest rank
-    assert summary.mean_us == 50.5
-    assert summary.spread_us == 98
 
 
 def test_steady_stream_passes():

@@ -17,7 +17,7 @@ import numpy as np
 from scipy import signal
 
 from wftool import __version__
-from wftool.analysis import sources
+from wftool.analysis import markdown, sources
 from wftool.analysis.flight import BAND_HZ, HARMONICS, Flight, FlightSpec, synthesize
 from wftool.analysis.harness import (
     FilterSettings,
@@ -27,6 +27,7 @@ from wftool.analysis.harness import (
 )
 from wftool.analysis.m7 import CLOCK_HZ, LONG_INSTRUCTIONS, M7_FLAGS, M7Harness, build_image
 from wftool.analysis.spectrum import Panel, write_series
+from wftool.stats import median
 
 SETTLE_S = 0.5
 """Samples before this are left out of every figure (the filter starts from rest)."""
@@ -332,13 +333,13 @@ def host_cost(
             one = harness.time_biquad_ns(reference[3 * start : 3 * (start + TIMING_CHUNK)])
             biquad.append(one / (3 * TIMING_CHUNK))
             ratios.append((update[-1] / 3 + process[-1]) / biquad[-1])
-    update_ns, process_ns = statistics.median(update), statistics.median(process)
+    update_ns, process_ns = median(update), median(process)
     return HostCost(
         update_ns_per_sample=update_ns,
         process_ns_per_sample_axis=process_ns,
         total_ns_per_sample_axis=update_ns / 3 + process_ns,
-        biquad_ns=statistics.median(biquad),
-        biquads=statistics.median(ratios),
+        biquad_ns=median(biquad),
+        biquads=median(ratios),
         repeats=repeat,
     )
 
@@ -458,7 +459,7 @@ def _worst_median(values: list[float | None]) -> str:
     present = [value for value in values if value is not None]
     if not present:
         return "–"
-    return f"{max(present):.1f} / {statistics.median(present):.1f}"
+    return f"{max(present):.1f} / {median(present):.1f}"
 
 
 def render_markdown(evaluation: Evaluation) -> str:
@@ -482,7 +483,7 @@ def render_markdown(evaluation: Evaluation) -> str:
         "",
         "## Summary",
         "",
-        *_markdown_table(list(rows[0]), [list(r.values()) for r in rows]),
+        *markdown.table(list(rows[0]), [list(r.values()) for r in rows]),
     ]
     lines += [
         "",
@@ -505,7 +506,7 @@ def render_markdown(evaluation: Evaluation) -> str:
             for k in range(HARMONICS):
                 cells = ["–" if v is None else f"{v:.1f}" for v in rate.attenuation_db[k]]
                 body.append([config.settings.name, str(rate.sample_rate_hz), f"H{k + 1}", *cells])
-    lines += _markdown_table(["config", "fs Hz", "harmonic", *bands], body)
+    lines += markdown.table(["config", "fs Hz", "harmonic", *bands], body)
     lines += [
         "",
         "## Motion band (what an estimator feels)",
@@ -536,7 +537,7 @@ def render_markdown(evaluation: Evaluation) -> str:
                     [config.settings.name, str(rate.sample_rate_hz), label]
                     + [fmt.format(v) for v in values]
                 )
-    lines += _markdown_table(["config", "fs Hz", "", *freqs], body)
+    lines += markdown.table(["config", "fs Hz", "", *freqs], body)
     lines += ["", "## CPU cost", ""]
     check = evaluation.m7_check
     if check:
@@ -567,7 +568,7 @@ def render_markdown(evaluation: Evaluation) -> str:
                     f"{m7.max_deviation:.1e}" if m7 else "–",
                 ]
             )
-    lines += _markdown_table(
+    lines += markdown.table(
         [
             "config",
             "fs Hz",
@@ -585,14 +586,6 @@ def render_markdown(evaluation: Evaluation) -> str:
         body,
     )
     return "\n".join(lines) + "\n"
-
-
-def _markdown_table(header: list[str], rows: list[list[str]]) -> list[str]:
-    return [
-        "| " + " | ".join(header) + " |",
-        "|" + "|".join("---" for _ in header) + "|",
-        *("| " + " | ".join(row) + " |" for row in rows),
-    ]
 
 
 def write_report(evaluation: Evaluation, out_dir: Path) -> tuple[Path, Path]:

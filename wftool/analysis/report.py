@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from wftool.analysis import markdown
 from wftool.analysis.published import (
     FSP_MEAN_CAUSE,
     FSP_SPREAD_CAUSE,
@@ -32,6 +33,7 @@ from wftool.fc.msp import Cmd
 from wftool.fc.msp_poller import PollResult
 from wftool.fc.tasks import TaskRow
 from wftool.sitl.truth import Lateness
+from wftool.stats import median, quantile
 
 BITS_PER_BYTE = 10
 """A UART byte on the wire: start bit, 8 data bits, stop bit."""
@@ -116,23 +118,24 @@ def _rows(series: TimingSeries) -> list[tuple[str, float | None]]:
 
 def _table(series: TimingSeries, paper: PublishedRow, why: dict[str, str]) -> list[str]:
     """One protocol's Table 1 in ms, as the paper gives it, with µs differences and why."""
-    lines = [
-        "| metric | ours (ms) | the paper (ms) | ours − paper (µs) | whether and why |",
-        "|---|---:|---:|---:|---|",
-    ]
+    rows = []
     theirs = list(paper.figures().values())
     for (name, ours), figure in zip(_rows(series), theirs, strict=True):
         difference = None if ours is None else ours - figure.value
-        lines.append(
-            f"| {name} | {_ms(ours)} | {_ms(figure.value)} | {_signed(difference)} | {why[name]} |"
-        )
+        rows.append((name, _ms(ours), _ms(figure.value), _signed(difference), why[name]))
     rate = series.stats.rate_hz
     rate_difference = None if rate is None else rate - paper.rate_hz.value
-    lines.append(
-        f"| mean rate (Hz) | {_us(rate)} | {paper.rate_hz.value:.0f} | "
-        f"{_signed(rate_difference)} Hz | {why['rate']} |"
+    rows.append(
+        (
+            "mean rate (Hz)",
+            _us(rate),
+            f"{paper.rate_hz.value:.0f}",
+            f"{_signed(rate_difference)} Hz",
+            why["rate"],
+        )
     )
-    return lines
+    header = ("metric", "ours (ms)", "the paper (ms)", "ours − paper (µs)", "whether and why")
+    return markdown.table(header, rows, "lrrrl")
 
 
 def _signed(value: float | None) -> str:
@@ -231,7 +234,8 @@ def _late_share(late: Lateness) -> str:
 def find_modes(deltas_us: np.ndarray, bin_us: float = 50.0) -> list[tuple[float, float]]:
     """(centre µs, share) of the histogram's local peaks holding `MODE_MIN_SHARE` or more,
     largest first; a centre is the median of the intervals within a bin of its peak."""
-    top = float(np.percentile(deltas_us, 99.9))
+    ordered = np.sort(deltas_us)
+    top = quantile(ordered, 0.999)
     edges = np.arange(0.0, top + 2 * bin_us, bin_us)
     counts, _ = np.histogram(deltas_us, edges)
     share = counts / max(deltas_us.size, 1)
@@ -240,7 +244,7 @@ def find_modes(deltas_us: np.ndarray, bin_us: float = 50.0) -> list[tuple[float,
     for i in range(share.size):
         if share[i] >= MODE_MIN_SHARE and share[i] >= padded[i] and share[i] > padded[i + 2]:
             near = deltas_us[np.abs(deltas_us - (edges[i] + bin_us / 2)) <= bin_us]
-            peaks.append((float(np.median(near)), float(share[i])))
+            peaks.append((median(near), float(share[i])))
     return sorted(peaks, key=lambda peak: -peak[1])
 
 
@@ -327,21 +331,23 @@ def _msp_why(report: ReportInput) -> dict[str, str]:
 
 def _sweep(report: ReportInput) -> list[str]:
     runs = sorted([report.msp, *report.sweep], key=lambda run: run.baud)
-    lines = [
-        "| MSP baud | RAW_IMU reply on the wire (µs) | replies/s the wire carries | mean (ms) "
-        "| median (ms) | P1 (ms) | P99 (ms) | P99−P1 (ms) | mean rate (Hz) |",
-        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
-    ]
+    header = (
+        "MSP baud", "RAW_IMU reply on the wire (µs)", "replies/s the wire carries", "mean (ms)",
+        "median (ms)", "P1 (ms)", "P99 (ms)", "P99−P1 (ms)", "mean rate (Hz)",
+    )  # fmt: skip
     reply = MSP_V1_OVERHEAD + RAW_IMU_PAYLOAD
+    rows = []
     for run in runs:
         stats = run.series.stats
         mark = " (this run's)" if run is report.msp else ""
-        lines.append(
-            f"| {run.baud}{mark} | {wire_us(reply, run.baud):.0f} | "
-            f"{run.baud / BITS_PER_BYTE / reply:.0f} | {_ms(stats.mean_us)} | "
-            f"{_ms(stats.p50_us)} | {_ms(stats.p1_us)} | {_ms(stats.p99_us)} | "
-            f"{_ms(stats.spread_us)} | {_us(stats.rate_hz)} |"
-        )
+        rows.append(
+            (
+                f"{run.baud}{mark}", f"{wire_us(reply, run.baud):.0f}",
+                f"{run.baud / BITS_PER_BYTE / reply:.0f}", _ms(stats.mean_us), _ms(stats.p50_us),
+                _ms(stats.p1_us), _ms(stats.p99_us), _ms(stats.spread_us), _us(stats.rate_hz),
+            )
+        )  # fmt: skip
+    lines = markdown.table(header, rows, "r" * len(header))
     lines += [
         "",
         f"The paper: mean {_ms(TABLE1['MSP'].mean_us.value)} ms, median "
@@ -371,9 +377,7 @@ def render(report: ReportInput) -> str:
         "",
         "## Set-up",
         "",
-        "| | ours | the paper |",
-        "|---|---|---|",
-        *(f"| {item} | {ours} | {theirs} |" for item, ours, theirs in report.setup),
+        *markdown.table(("", "ours", "the paper"), report.setup),
         "",
         f"## MSP: {report.msp.series.clock} of MSP_RAW_IMU replies",
         "",

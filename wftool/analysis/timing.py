@@ -8,11 +8,12 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Final
+from typing import Any
 
 import numpy as np
 
 from wftool import __version__
+from wftool.analysis import markdown
 from wftool.analysis.published import PAPER, TABLE1
 from wftool.errors import UsageError
 from wftool.fc.msp import Cmd
@@ -21,27 +22,24 @@ from wftool.fsp.packets import SEQ_MODULUS
 from wftool.recording import msp as msp_recording
 from wftool.recording import reader as recording
 from wftool.recording.events import EVENT_TOPIC
-from wftool.verify.monitor import IntervalSummary
+from wftool.stats import DEFINITION, Distribution, quantile
 
 GAP_MIN_S = 0.2
 GAP_INTERVALS = 50
 """An interval longer than this many expected intervals (and than `GAP_MIN_S`) is a gap."""
-PERCENTILE_METHOD: Final = "lower"
 _MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
-def interval_stats(deltas_us: np.ndarray) -> IntervalSummary:
+def interval_stats(deltas_us: np.ndarray) -> Distribution:
     """Mean, median, P1 and P99 of `deltas_us` (at least one), as `verify` summarises the
-    FC intervals of a stream."""
+    FC intervals of a stream (`wftool.stats`)."""
     deltas = np.asarray(deltas_us, dtype=np.float64)
     if deltas.size == 0:
         raise ValueError("no intervals")
-    p1, median, p99 = np.percentile(deltas, [1, 50, 99], method=PERCENTILE_METHOD)
-    mean = float(deltas.mean())
-    return IntervalSummary(int(deltas.size), mean, float(p1), float(median), float(p99))
+    return Distribution.of_sorted(np.sort(deltas), float(deltas.mean()))
 
 
-def stats_json(stats: IntervalSummary) -> dict[str, float | None]:
+def stats_json(stats: Distribution) -> dict[str, float | None]:
     return {
         "intervals": stats.count,
         "mean_us": stats.mean_us,
@@ -61,7 +59,7 @@ class Segment:
     """From the recording's first sample."""
     duration_s: float
     samples: int
-    stats: IntervalSummary | None
+    stats: Distribution | None
     """None for a single sample."""
     cut: str
     """What ends it: "end", "reconnection", "FC reset" or "gap of … s"."""
@@ -93,7 +91,7 @@ class TimingSeries:
     """Its intervals that count (see `Samples.counts`), µs..."""
     delta_times_s: np.ndarray
     """... and when each ended, s from the segment's first sample."""
-    stats: IntervalSummary
+    stats: Distribution
     segments: list[Segment]
     analysed: int
     """Index of the analysed segment in `segments`."""
@@ -417,13 +415,10 @@ def render_markdown(series: list[TimingSeries], paper: bool = False) -> str:
         "# Table 1: sample-interval statistics",
         "",
         "Intervals between consecutive samples: FSP by the FC's sample times, MSP by the "
-        "OBC's reception times of MSP_RAW_IMU replies. Percentiles: a value that occurred "
-        f"(NumPy method '{PERCENTILE_METHOD}').",
+        f"OBC's reception times of MSP_RAW_IMU replies. Percentiles: {DEFINITION}.",
         "",
-        "| " + " | ".join(COLUMNS) + " |",
-        "|" + "|".join("---" if c in ("recording", "time base") else "---:" for c in COLUMNS) + "|",
+        *markdown.table(COLUMNS, [list(row.values()) for row in rows], "ll" + "r" * 8),
     ]
-    lines += ["| " + " | ".join(row.values()) + " |" for row in rows]
     notes = table_notes(series, paper)
     if notes:
         lines += ["", *(f"- {note}" for note in notes)]
@@ -437,7 +432,7 @@ def write_table(
     markdown, data = out_dir / f"{stem}.md", out_dir / f"{stem}.json"
     document: dict[str, Any] = {
         "wftool": __version__,
-        "percentile_method": PERCENTILE_METHOD,
+        "percentile_method": DEFINITION,
         "gap_rule": {"min_s": GAP_MIN_S, "expected_intervals": GAP_INTERVALS},
         "recordings": [one.as_json() for one in series],
     }
@@ -471,7 +466,7 @@ def _axis_top_us(series: list[TimingSeries]) -> float:
     """A shared axis end that shows every distribution's body and P99 (not every outlier)."""
     top = 0.0
     for one in series:
-        p999 = float(np.percentile(one.deltas_us, 99.9, method=PERCENTILE_METHOD))
+        p999 = quantile(np.sort(one.deltas_us), 0.999)
         top = max(top, 1.2 * p999, 1.5 * one.stats.p99_us, 2.0 * (one.expected_us or 0.0))
     return top or 1.0
 

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import math
 import random
-import statistics
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -14,6 +13,7 @@ from dataclasses import dataclass
 from wftool.bench.decode import FRAME_PERIOD_US
 from wftool.fsp.clock import U32, ClockEstimator, FcClock
 from wftool.fsp.estimators import make_estimator
+from wftool.stats import median, quantile
 
 PACKET_PERIOD_US = 2 * FRAME_PERIOD_US
 """Two frames per packet at 1049 Hz: ~525 packets/s (spec §7)."""
@@ -149,10 +149,7 @@ def _rms(values: Sequence[float]) -> float:
 
 
 def _p99_abs(values: Sequence[float]) -> float:
-    if not values:
-        return math.nan
-    ordered = sorted(abs(v) for v in values)
-    return ordered[round(0.99 * (len(ordered) - 1))]
+    return quantile(sorted(abs(v) for v in values), 0.99) if values else math.nan
 
 
 def observations_per_s(factory: Callable[[], ClockEstimator], trace: ClockTrace) -> float:
@@ -229,7 +226,7 @@ class ModelSummary:
 
     @property
     def observations_per_s(self) -> float:
-        return statistics.median(run.observations_per_s for run in self.runs)
+        return median(run.observations_per_s for run in self.runs)
 
 
 GOAL_RMS_S = 50e-6
@@ -266,7 +263,7 @@ class ClockBenchResult:
         theirs = [s.observations_per_s for s in self.summaries if s.estimator == REFERENCE]
         if not mine or not theirs:
             return math.nan
-        return statistics.median(mine) / statistics.median(theirs)
+        return median(mine) / median(theirs)
 
     def goal_misses(self) -> list[ModelSummary]:
         """Estimators other than the reference that miss the goal, by model."""

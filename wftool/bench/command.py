@@ -29,6 +29,7 @@ from wftool.fsp.twoway import RoundTrip, TwoWayClockEstimator
 from wftool.sitl.process import SITL_BOARD, VirtualBoard
 from wftool.sitl.session import VirtualFcSession
 from wftool.sitl.truth import Lateness, TrueClock, lateness_between
+from wftool.stats import Distribution, quantile
 
 RATES_HZ = (100.0, 500.0)
 LEAD_S = 0.005
@@ -47,34 +48,6 @@ SETTLE_S = 0.2
 ROLL_BASE = 1000
 ROLL_VALUES = 1000
 """Command k carries roll ROLL_BASE + k mod ROLL_VALUES: the stream shows which one acts."""
-
-
-@dataclass(frozen=True)
-class Spread:
-    """Quantiles of a delay, in µs (from many commands)."""
-
-    count: int
-    p1_us: float
-    p50_us: float
-    p99_us: float
-    max_us: float
-
-    @property
-    def spread_us(self) -> float:
-        """P99 − P1."""
-        return self.p99_us - self.p1_us
-
-    @classmethod
-    def of(cls, values_us: Sequence[float]) -> Spread | None:
-        if not values_us:
-            return None
-        ordered = sorted(values_us)
-        last = len(ordered) - 1
-
-        def at(q: float) -> float:
-            return ordered[round(q * last)]
-
-        return cls(len(ordered), at(0.01), at(0.5), at(0.99), ordered[-1])
 
 
 @dataclass(frozen=True)
@@ -101,11 +74,11 @@ class CommandRow:
     unreported: int
     """Timed: commands with no report (not fresh, or the report lost); immediate: with no
     time reply (a newer command came in the same FSP task run)."""
-    apply: Spread | None
+    apply: Distribution | None
     """FC time of the application − the intended instant on the FC clock (true)."""
-    seen: Spread | None
+    seen: Distribution | None
     """FC time of the first frame whose RC shows the command − the intended instant."""
-    asked: Spread | None = None
+    asked: Distribution | None = None
     """Timed, the commands applied on time: the FC's own account, the applying PID iteration
     − the FC time asked for (its rule: at most one PID period)."""
     latest_us: float | None = None
@@ -302,7 +275,7 @@ class _Run:
 
 def _frame_period_us(frames: list[tuple[int, int]]) -> float:
     steps = sorted(b[0] - a[0] for a, b in pairwise(frames))
-    return float(steps[len(steps) // 2]) if steps else math.nan
+    return quantile(steps, 0.5) if steps else math.nan
 
 
 def _row(
@@ -365,8 +338,8 @@ def _row(
         dropped=outcomes[CommandOutcome.SUPERSEDED] + outcomes[CommandOutcome.EXPIRED],
         unlocked=run.unlocked[rate] if mode == TIMED else 0,
         unreported=len(sent) - answered,
-        apply=Spread.of(apply),
-        seen=Spread.of(seen),
-        asked=Spread.of(asked) if mode == TIMED else None,
+        apply=Distribution.of(apply),
+        seen=Distribution.of(seen),
+        asked=Distribution.of(asked) if mode == TIMED else None,
         latest_us=latest if math.isfinite(latest) else None,
     )

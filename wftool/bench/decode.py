@@ -7,7 +7,6 @@ from __future__ import annotations
 import itertools
 import math
 import random
-import statistics
 import struct
 import tempfile
 import time
@@ -20,6 +19,7 @@ from wftool.errors import UsageError
 from wftool.fsp import SensorFrame, StateDecoder, StatePacket, StreamStats
 from wftool.fsp.encoder import encode_state
 from wftool.fsp.packets import rc_values
+from wftool.stats import median
 
 REALTIME_PACKETS_PER_S = 525  # 1049 Hz of frames, two per packet (spec §7)
 FRAME_PERIOD_US = 953
@@ -293,7 +293,7 @@ class DecodeComparison:
         return max(r.frames_per_s for r in self.runs[path])
 
     def median(self, path: str) -> float:
-        return statistics.median_low(r.frames_per_s for r in self.runs[path])
+        return median(r.frames_per_s for r in self.runs[path])
 
     @property
     def agree(self) -> bool:

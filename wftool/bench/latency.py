@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import math
 import random
-import statistics
 import tempfile
 import time
 from collections.abc import Callable, Sequence
@@ -21,24 +20,10 @@ from wftool.fsp.schedule import DEFAULT_RATE_HZ
 from wftool.fsp.twoway import RoundTrip, TwoWayClockEstimator
 from wftool.sitl.session import VirtualFcSession
 from wftool.sitl.truth import TrueClock
+from wftool.stats import Distribution, quantile
 
 COMMAND = (1500, 1500, 1500, 1000, 1000, 1000)
 READ_TIMEOUT_S = 0.05
-
-
-@dataclass(frozen=True)
-class Quantiles:
-    p50_s: float
-    p99_s: float
-    max_s: float
-
-    @classmethod
-    def of(cls, values: Sequence[float]) -> Quantiles | None:
-        if not values:
-            return None
-        ordered = sorted(values)
-        last = len(ordered) - 1
-        return cls(ordered[round(0.5 * last)], ordered[round(0.99 * last)], ordered[-1])
 
 
 @dataclass(frozen=True)
@@ -71,15 +56,15 @@ class LatencyBenchResult:
     lost_frames: int
     min_delay_s: float
     """The fastest packet: true send instant to read."""
-    sample_to_frame: Quantiles | None
+    sample_to_frame: Distribution | None
     """True sample instant → decoded frame available."""
-    send_to_frame: Quantiles | None
+    send_to_frame: Distribution | None
     """True packet send instant (`tx_time_us`) → decoded frame available."""
-    decode: Quantiles | None
+    decode: Distribution | None
     """Read returned → its frames decoded."""
     estimators: tuple[EstimatorError, ...]
     round_trips: int
-    rtt: Quantiles | None
+    rtt: Distribution | None
     round_trip_rejected: dict[str, int] = field(default_factory=dict)
     reanchors: int = 0
     """Times the SITL fell more than 50 ms behind the host clock and re-anchored."""
@@ -184,8 +169,12 @@ def _replay(
         p99_s=_p99_abs(errors),
         envelope_rms_s=math.nan if two_way else _rms([e - min_delay_s for e in errors]),
         within_uncertainty=covered / len(errors) if two_way and errors else None,
-        uncertainty_s=statistics.median(uncertainties) if uncertainties else None,
+        uncertainty_s=quantile(sorted(uncertainties), 0.5) if uncertainties else None,
     )
+
+
+def _us(values_s: Sequence[float]) -> Distribution | None:
+    return Distribution.of(1e6 * value for value in values_s)
 
 
 def run_latency_bench(
@@ -246,12 +235,12 @@ def run_latency_bench(
         errors=stats.errors,
         lost_frames=stats.lost_frames,
         min_delay_s=min_delay,
-        sample_to_frame=Quantiles.of(sample_to_frame),
-        send_to_frame=Quantiles.of(send_to_frame),
-        decode=Quantiles.of(decode),
+        sample_to_frame=_us(sample_to_frame),
+        send_to_frame=_us(send_to_frame),
+        decode=_us(decode),
         estimators=scored,
         round_trips=len(rtts),
-        rtt=Quantiles.of(rtts),
+        rtt=_us(rtts),
         round_trip_rejected=rejected,
         reanchors=sum(1 for a in truth.anchors if a.reason != "start"),
     )

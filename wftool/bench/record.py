@@ -21,6 +21,7 @@ from wftool.recording.mcapprocess import McapProcess
 from wftool.recording.reader import recording_columns
 from wftool.recording.recorder import RECORD_FORMATS, Recorder
 from wftool.recording.rosbag import bag_file
+from wftool.stats import quantile
 from wftool.verify.live import Dispatcher
 from wftool.verify.monitor import StreamMonitor
 from wftool.verify.session import replay_recording
@@ -176,7 +177,7 @@ def _stall_figures(name: str, stalls: list[float], path: Path) -> StallFigures:
         name,
         len(ordered),
         ordered[-1],
-        ordered[min(len(ordered) - 1, int(len(ordered) * 0.999))],
+        quantile(ordered, 0.999),
         sum(1 for stall in ordered if stall > 1e-3),
         chunks,
     )

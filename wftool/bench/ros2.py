@@ -18,11 +18,11 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
-from wftool.bench.latency import Quantiles
 from wftool.fsp import FspReader, StatePacket
 from wftool.fsp.schedule import DEFAULT_RATE_HZ
 from wftool.recording.events import Event, StreamHealth
 from wftool.sitl.session import Motion, VirtualFcSession
+from wftool.stats import Distribution
 
 NAMESPACE = "/wftool_bench"
 IMU_TOPIC = f"{NAMESPACE}/fsp/imu"
@@ -39,8 +39,8 @@ class ReaderFigures:
     seconds: float
     cpu_s: float
     """The reader's process: user + system time over the measured time."""
-    latency: Quantiles | None
-    """Stamp to frame in hand, s."""
+    latency: Distribution | None
+    """Stamp to frame in hand, µs."""
 
     @property
     def rate_hz(self) -> float:
@@ -66,8 +66,8 @@ class Ros2Bench:
     """Frames the node published while the subscriber measured."""
     received_of_published: int
     """Of those, the ones the subscriber received."""
-    hop: Quantiles | None
-    """Per frame: the subscriber's callback minus the node's read, s."""
+    hop: Distribution | None
+    """Per frame: the subscriber's callback minus the node's read, µs."""
     subscriber_cpu_percent: float
 
 
@@ -236,7 +236,7 @@ def _figures(
 ) -> Ros2Bench:
     frames, elapsed, cpu, latencies = direct
     direct_figures = ReaderFigures(
-        "FspReader", frames, elapsed, cpu, Quantiles.of([v / 1e9 for v in array("q", latencies)])
+        "FspReader", frames, elapsed, cpu, Distribution.of(v / 1e3 for v in array("q", latencies))
     )
     sub_elapsed, sub_cpu, stamps_raw, received_raw = received
     node_elapsed, node_cpu, node_stamps_raw, reads_raw = published
@@ -247,9 +247,9 @@ def _figures(
         len(read_at),
         node_elapsed,
         node_cpu,
-        Quantiles.of([(r - s) / 1e9 for s, r in zip(stamps, receive)]),
+        Distribution.of((r - s) / 1e3 for s, r in zip(stamps, receive)),
     )
-    hops = [(r - read_at[s]) / 1e9 for s, r in zip(stamps, receive) if s in read_at]
+    hops = [(r - read_at[s]) / 1e3 for s, r in zip(stamps, receive) if s in read_at]
     # The node measured from the subscriber's start, told a moment later, until after its end.
     window = [s for s in read_at if stamps and stamps[0] <= s <= stamps[-1]]
     taken = set(stamps)
@@ -260,6 +260,6 @@ def _figures(
         node=node_figures,
         published=len(window),
         received_of_published=sum(1 for s in window if s in taken),
-        hop=Quantiles.of(hops),
+        hop=Distribution.of(hops),
         subscriber_cpu_percent=100 * sub_cpu / sub_elapsed if sub_elapsed else math.nan,
     )

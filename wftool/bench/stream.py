@@ -15,8 +15,9 @@ from rich.console import Console
 
 from wftool.fsp import StatePacket
 from wftool.sitl.session import VirtualFcSession
+from wftool.stats import Distribution
 from wftool.verify.dashboard import render
-from wftool.verify.monitor import IntervalSummary, StreamSummary
+from wftool.verify.monitor import StreamSummary
 from wftool.verify.session import VerifySession
 
 
@@ -28,8 +29,8 @@ class RateFigures:
     lost_frames: int
     fc_drops: int
     errors: int
-    fc_interval: IntervalSummary | None
-    arrival_interval: IntervalSummary | None
+    fc_interval: Distribution | None
+    arrival_interval: Distribution | None
 
     @property
     def held(self) -> bool:
@@ -51,11 +52,6 @@ class StreamBenchResult:
         """The rate with the most frames/s held without loss."""
         held = [r for r in self.rates if r.held]
         return max(held, key=lambda r: r.expected_frames_per_s) if held else None
-
-
-def _quantile(values: Sequence[float], q: float) -> float:
-    ordered = sorted(values)
-    return ordered[round(q * (len(ordered) - 1))] if ordered else float("nan")
 
 
 def run_stream_bench(binary: Path, rates: Sequence[int], seconds: float) -> StreamBenchResult:
@@ -99,5 +95,7 @@ def run_stream_bench(binary: Path, rates: Sequence[int], seconds: float) -> Stre
             )
             if index == 0:
                 cpu_percent = 100.0 * cpu / wall
-                latency = (1e3 * _quantile(latencies, 0.5), 1e3 * _quantile(latencies, 0.99))
+                spread = Distribution.of(1e6 * v for v in latencies)
+                if spread is not None:
+                    latency = (spread.p50_us / 1e3, spread.p99_us / 1e3)
     return StreamBenchResult(seconds, tuple(figures), cpu_percent, latency)

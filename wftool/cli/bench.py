@@ -13,11 +13,11 @@ from rich.console import Console
 from rich.table import Table
 
 from wftool.bench.build import bench_build
-from wftool.bench.command import IMMEDIATE, LEAD_S, TIMED, CommandBenchResult, Spread
+from wftool.bench.command import IMMEDIATE, LEAD_S, TIMED, CommandBenchResult
 from wftool.bench.decode import STREAMS
 from wftool.cli.build import build_options, options_from, project_from
 from wftool.cli.sitl import rate_option
-from wftool.verify.monitor import IntervalSummary
+from wftool.stats import Distribution
 
 out = Console(highlight=False, width=None if sys.stdout.isatty() else 200)
 LEAD_MS = LEAD_S * 1e3
@@ -217,14 +217,15 @@ def bench_ros2(seconds: float, rate_hz: int, binary: Path | None, project_dir: P
             reader.name, f"{reader.frames:,}", f"{reader.rate_hz:.1f}",
             f"{reader.cpu_percent:.1f}", f"{reader.cpu_percent_per_khz:.1f}",
             *(("–",) * 3 if latency is None else
-              tuple(f"{1e3 * v:.2f}" for v in (latency.p50_s, latency.p99_s, latency.max_s))),
+              tuple(f"{v / 1e3:.2f}" for v in (latency.p50_us, latency.p99_us, latency.max_us))),
         )  # fmt: skip
     out.print(table)
     hop = result.hop
     if hop is not None:
         out.print(
             f"the node's hop (its read → the subscriber's callback), per frame: P50 "
-            f"{1e3 * hop.p50_s:.2f} ms, P99 {1e3 * hop.p99_s:.2f} ms, max {1e3 * hop.max_s:.2f} ms"
+            f"{hop.p50_us / 1e3:.2f} ms, P99 {hop.p99_us / 1e3:.2f} ms, "
+            f"max {hop.max_us / 1e3:.2f} ms"
         )
     lost = result.published - result.received_of_published
     out.print(
@@ -293,8 +294,8 @@ def bench_latency(
     ):
         if quantiles is not None:
             table.add_row(
-                label, f"{quantiles.p50_s * 1e6:.1f}", f"{quantiles.p99_s * 1e6:.1f}",
-                f"{quantiles.max_s * 1e6:.1f}",
+                label, f"{quantiles.p50_us:.1f}", f"{quantiles.p99_us:.1f}",
+                f"{quantiles.max_us:.1f}",
             )  # fmt: skip
     out.print(table)
     if result.time_reply:
@@ -410,7 +411,7 @@ def bench_command(
     out.print(_command_note(result))
 
 
-def _spread(spread: Spread | None) -> tuple[str, ...]:
+def _spread(spread: Distribution | None) -> tuple[str, ...]:
     if spread is None:
         return ("–",) * 5
     return tuple(
@@ -427,7 +428,7 @@ def _command_note(result: CommandBenchResult) -> str:
         rows = {row.mode: row for row in result.rows if row.rate_hz == rate}
         immediate, timed = rows.get(IMMEDIATE), rows.get(TIMED)
 
-        def figure(spread: Spread | None) -> str:
+        def figure(spread: Distribution | None) -> str:
             return "–" if spread is None else f"{spread.spread_us:.0f}"
 
         own = timed.asked if timed is not None else None
@@ -447,7 +448,7 @@ def _command_note(result: CommandBenchResult) -> str:
     )
 
 
-def _quantiles(interval: IntervalSummary | None) -> str:
+def _quantiles(interval: Distribution | None) -> str:
     if interval is None:
         return "–"
     return f"{interval.p1_us:.0f}/{interval.p50_us:.0f}/{interval.p99_us:.0f}"

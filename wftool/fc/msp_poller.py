@@ -20,6 +20,7 @@ from typing import Protocol
 from wftool.errors import UsageError
 from wftool.fc.msp import Cmd, FrameReader, MspFrame, MspVersion, encode_request
 from wftool.link.transport import Port, port_errors, read_within, selectable_fd
+from wftool.stats import quantile
 
 DEFAULT_WINDOW = 4
 """Requests in flight at most: 36 bytes of MSP v2 requests (24 of v1), far below any FC
@@ -142,7 +143,7 @@ class CommandStats:
         latency = sorted(self.latencies_s)
 
         def pick(q: float) -> float | None:
-            return latency[int(q * (len(latency) - 1))] * 1e3 if latency else None
+            return quantile(latency, q) * 1e3 if latency else None
 
         return {
             "command": self.name,

@@ -16,8 +16,9 @@ from rich.text import Text
 
 from wftool.display import printable
 from wftool.fsp import SensorFrame, UplinkFlag
+from wftool.stats import Distribution
 from wftool.verify.criteria import Verdict
-from wftool.verify.monitor import OUTLIER, IntervalSummary, StreamSummary
+from wftool.verify.monitor import OUTLIER, StreamSummary
 
 LABEL = 21
 CELL = 9
@@ -67,7 +68,7 @@ def _rates(summary: StreamSummary) -> list[Text]:
 
 
 def _intervals(summary: StreamSummary) -> list[Text]:
-    def row(name: str, interval: IntervalSummary | None) -> Text:
+    def row(name: str, interval: Distribution | None) -> Text:
         if interval is None:
             return _row(name, ["–"] * 6)
         return _row(

@@ -34,58 +34,13 @@ from wftool.fsp.packets import SEQ_MODULUS, rc_values
 from wftool.fsp.twoway import RoundTrip, RoundTripRejection, TwoWayClockEstimator, TwoWayState
 from wftool.recording.events import Event, StreamHealth, UplinkReport
 from wftool.recording.ros2msg import SLOW_PERIOD_NS
+from wftool.stats import Distribution, Histogram
 from wftool.verify.uplink import UplinkStats, UplinkTracker
 
 RATE_WINDOW_S = 2.0
 """The dashboard's "current rate" looks back this far."""
 OUTLIER = "outlier"
 """The key of packets left out of the books (`StatePacket.outlier`) among the rejections."""
-
-
-@dataclass(frozen=True)
-class IntervalSummary:
-    count: int
-    mean_us: float
-    p1_us: float
-    p50_us: float
-    p99_us: float
-
-    @property
-    def spread_us(self) -> float:
-        """P99 − P1: the jitter figure the verdict judges."""
-        return self.p99_us - self.p1_us
-
-    @property
-    def rate_hz(self) -> float | None:
-        """The rate these intervals make (1 / mean); None for a zero mean."""
-        return 1e6 / self.mean_us if self.mean_us > 0 else None
-
-
-class IntervalHistogram:
-    """Intervals in whole microseconds."""
-
-    def __init__(self) -> None:
-        self._counts: Counter[int] = Counter()
-        self._total = 0
-        self._sum = 0
-
-    def add(self, interval_us: int) -> None:
-        self._counts[interval_us] += 1
-        self._total += 1
-        self._sum += interval_us
-
-    def summary(self) -> IntervalSummary | None:
-        if not self._total:
-            return None
-        ranks = [0.01 * (self._total - 1), 0.5 * (self._total - 1), 0.99 * (self._total - 1)]
-        found: list[float] = []
-        seen = 0
-        for value in sorted(self._counts):
-            seen += self._counts[value]
-            while ranks and seen > ranks[0]:
-                found.append(float(value))
-                ranks.pop(0)
-        return IntervalSummary(self._total, self._sum / self._total, *found)
 
 
 @dataclass(frozen=True)
@@ -96,7 +51,7 @@ class TimedSummary:
     outcomes: dict[str, int]
     """Commands per `CommandOutcome` name, by the FC's own counts (lost reports included)."""
     lost_reports: int
-    apply: IntervalSummary | None
+    apply: Distribution | None
     """Commands applied on time: the applying PID iteration − the FC time asked for (µs;
     the FC's rule keeps it below one PID period)."""
     latest_us: int | None
@@ -126,7 +81,7 @@ class TimedTracker:
 
     def __init__(self) -> None:
         self.book = ReportBook()
-        self.delays = IntervalHistogram()
+        self.delays = Histogram()
         self.latest_us: int | None = None
 
     def add(self, report: CommandReport) -> None:
@@ -166,8 +121,8 @@ class StreamSummary:
     source_rate_hz: float | None
     """1 / mean FC sample interval: the rate the FC captures at, by its own clock."""
     expected_rate_hz: float | None
-    fc_interval: IntervalSummary | None
-    arrival_interval: IntervalSummary | None
+    fc_interval: Distribution | None
+    arrival_interval: Distribution | None
     lost_frames: int
     lost_packets: int
     fc_drops: int
@@ -185,7 +140,7 @@ class StreamSummary:
     """The estimator behind `clock` and the frames' OBC times (`wftool.fsp.ESTIMATORS`)."""
     uplink: UplinkStats | None
     connected: bool
-    round_trip: IntervalSummary | None = None
+    round_trip: Distribution | None = None
     """Command → time reply read, in µs, when the FC answers (E2, `fsp_time_reply`)."""
     round_trip_rejected: dict[str, int] = field(default_factory=dict)
     """Replies or round trips not used, by cause (`RoundTripRejection`)."""
@@ -299,8 +254,8 @@ class StreamMonitor:
 
     port: str
     expected_rate_hz: float | None = None
-    fc_intervals: IntervalHistogram = field(default_factory=IntervalHistogram)
-    arrival_intervals: IntervalHistogram = field(default_factory=IntervalHistogram)
+    fc_intervals: Histogram = field(default_factory=Histogram)
+    arrival_intervals: Histogram = field(default_factory=Histogram)
     latest: SensorFrame | None = None
     uplink: UplinkTracker | None = None
     clock: str = ESTIMATORS[0]
@@ -311,7 +266,7 @@ class StreamMonitor:
         self.decoder = StateDecoder(self.clock, time_replies=True)
         assert self.decoder.round_trips is not None
         self.decoder.round_trips.on_round_trip = self._round_trip
-        self.round_trips = IntervalHistogram()
+        self.round_trips = Histogram()
         self.timed = TimedTracker()
         self._commands = 0
         """Commands sent on this connection (a port opened with it numbers them from 0)."""

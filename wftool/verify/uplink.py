@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from wftool.errors import UsageError
 from wftool.fsp import StatePacket
 from wftool.fsp.schedule import RATE_HZ_MAX
+from wftool.stats import quantile
 
 PATTERN = (1100, 1300, 1500, 1700, 1900, 1200, 1400, 1600, 1800)
 NEUTRAL = 1500
@@ -110,14 +111,14 @@ class UplinkTracker:
     def stats(self) -> UplinkStats:
         rtts = sorted(self._rtts)
 
-        def quantile(q: float) -> float | None:
-            return 1e3 * rtts[round(q * (len(rtts) - 1))] if rtts else None
+        def ms(q: float) -> float | None:
+            return 1e3 * quantile(rtts, q) if rtts else None
 
         return UplinkStats(
             commands_sent=self._commands,
             steps_sent=len(self._steps),
             steps_echoed=len(self._echoed),
-            rtt_p50_ms=quantile(0.5),
-            rtt_p99_ms=quantile(0.99),
-            rtt_max_ms=1e3 * rtts[-1] if rtts else None,
+            rtt_p50_ms=ms(0.5),
+            rtt_p99_ms=ms(0.99),
+            rtt_max_ms=ms(1.0),
         )
