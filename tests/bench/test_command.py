@@ -56,7 +56,7 @@ def test_bench_command_prints_both_rows_and_the_note(
     [
         (("--rates", "100,fast"), "expected numbers like 100,500: '100,fast'"),
         (("--rates", "0"), "command rates must be above 0 and at most 1000 Hz: '0'"),
-        (("--lead-ms", "50"), "50.0 is not in the range 0.0<=x<=40.0"),
+        (("--lead-ms", "50"), "--lead-ms must be a number from 0 to 40 ms, not 50"),
     ],
 )
 def test_bench_command_bad_options_are_one_line(

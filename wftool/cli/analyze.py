@@ -16,6 +16,7 @@ from rich.table import Table
 
 from wftool.analysis.harness import PRESETS
 from wftool.cli.build import project_option
+from wftool.cli.number import Number
 from wftool.display import shown
 from wftool.extras import require
 
@@ -91,7 +92,7 @@ def spectrum_command(recording: Path, out_path: Path | None, axis: str) -> None:
     multiple=True,
     help="Accelerometer sample rate in Hz; repeatable. Default: 800 (BMI270) and 1000.",
 )
-@click.option("--duration", type=click.FloatRange(3.0, 600.0), default=30.0, show_default=True,
+@click.option("--duration", type=Number(3.0, 600.0, unit="s"), default=30.0, show_default=True,
               help="Length of the synthetic flight in s.")  # fmt: skip
 @click.option("--repeat", type=click.IntRange(1), default=15, show_default=True,
               help="Host timing runs; medians are reported.")  # fmt: skip
@@ -166,7 +167,7 @@ def accfilter_command(
 )
 @click.option(
     "--expected-rate",
-    type=click.FloatRange(min=0, min_open=True),
+    type=Number(0, min_open=True, unit="Hz"),
     metavar="HZ",
     help="The rate the samples should come at [what each recording says].",
 )

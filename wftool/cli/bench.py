@@ -16,6 +16,7 @@ from wftool.bench.build import bench_build
 from wftool.bench.command import IMMEDIATE, LEAD_S, TIMED, CommandBenchResult
 from wftool.bench.decode import STREAMS
 from wftool.cli.build import build_options, options_from, project_from
+from wftool.cli.number import SECONDS, Number
 from wftool.cli.sitl import rate_option
 from wftool.stats import Distribution
 
@@ -80,7 +81,13 @@ def bench_build_command(target: str, repeat: int, project_dir: Path | None, **op
 
 
 @bench_group.command("decode")
-@click.option("--minutes", default=10.0, show_default=True, help="Length of the replayed stream.")
+@click.option(
+    "--minutes",
+    type=Number(0, 600, min_open=True, unit="min"),
+    default=10.0,
+    show_default=True,
+    help="Length of the replayed stream.",
+)
 @click.option("--chunk", default=4096, show_default=True, help="Bytes handed to each feed().")
 @click.option("--tunnel", is_flag=True, help="Replay the 180-byte MAVLink-tunnel variant.")
 @click.option(
@@ -150,7 +157,9 @@ def bench_decode(minutes: float, chunk: int, tunnel: bool, repeat: int) -> None:
     show_default=True,
     help="fsp_rate_hz values to try, comma-separated; the first is the default rate.",
 )
-@click.option("--seconds", default=60.0, show_default=True, help="Streaming time per rate.")
+@click.option(
+    "--seconds", type=SECONDS, default=60.0, show_default=True, help="Streaming time per rate."
+)
 @sitl_options
 def bench_stream(rates: str, seconds: float, binary: Path | None, project_dir: Path | None) -> None:
     """On the virtual FC: the highest fsp_rate_hz that streams without loss, verify's CPU
@@ -190,7 +199,9 @@ def bench_stream(rates: str, seconds: float, binary: Path | None, project_dir: P
 
 
 @bench_group.command("ros2")
-@click.option("--seconds", default=20.0, show_default=True, help="Streaming time per reader.")
+@click.option(
+    "--seconds", type=SECONDS, default=20.0, show_default=True, help="Streaming time per reader."
+)
 @rate_option
 @sitl_options
 def bench_ros2(seconds: float, rate_hz: int, binary: Path | None, project_dir: Path | None) -> None:
@@ -236,7 +247,7 @@ def bench_ros2(seconds: float, rate_hz: int, binary: Path | None, project_dir: P
 
 
 @bench_group.command("latency")
-@click.option("--seconds", default=60.0, show_default=True, help="Streaming time.")
+@click.option("--seconds", type=SECONDS, default=60.0, show_default=True, help="Streaming time.")
 @rate_option
 @click.option(
     "--time-reply/--no-time-reply",
@@ -246,7 +257,7 @@ def bench_ros2(seconds: float, rate_hz: int, binary: Path | None, project_dir: P
 )
 @click.option(
     "--command-rate",
-    type=click.FloatRange(1.0, 1000.0),
+    type=Number(1.0, 1000.0, unit="commands/s"),
     default=50.0,
     show_default=True,
     help="Commands per second sent to the FC.",
@@ -304,7 +315,9 @@ def bench_latency(
 
 
 @bench_group.command("command")
-@click.option("--seconds", default=20.0, show_default=True, help="Commanding time per row.")
+@click.option(
+    "--seconds", type=SECONDS, default=20.0, show_default=True, help="Commanding time per row."
+)
 @click.option(
     "--rates",
     default="100,500",
@@ -313,7 +326,7 @@ def bench_latency(
 )
 @click.option(
     "--lead-ms",
-    type=click.FloatRange(0.0, 40.0),
+    type=Number(0.0, 40.0, unit="ms"),
     default=LEAD_MS,
     show_default=True,
     help="How far ahead of its time each timed command is sent.",
@@ -455,12 +468,22 @@ def _quantiles(interval: Distribution | None) -> str:
 
 
 @bench_group.command("clock")
-@click.option("--seconds", default=300.0, show_default=True, help="Length of each simulated run.")
+@click.option(
+    "--seconds",
+    type=SECONDS,
+    default=300.0,
+    show_default=True,
+    help="Length of each simulated run.",
+)
 @click.option(
     "--seeds", type=click.IntRange(1), default=3, show_default=True, help="Runs per model."
 )
 @click.option(
-    "--drift", default=1.0, show_default=True, help="Drift of the FC's rate, ppm per minute."
+    "--drift",
+    type=Number(unit="ppm/min"),
+    default=1.0,
+    show_default=True,
+    help="Drift of the FC's rate, ppm per minute.",
 )
 @click.option(
     "--repeat",
@@ -509,7 +532,13 @@ def bench_clock(seconds: float, seeds: int, drift: float, repeat: int) -> None:
 
 
 @bench_group.command("record")
-@click.option("--seconds", default=60.0, show_default=True, help="Length of the recorded stream.")
+@click.option(
+    "--seconds",
+    type=SECONDS,
+    default=60.0,
+    show_default=True,
+    help="Length of the recorded stream.",
+)
 @click.option(
     "--chunk", default=118, show_default=True, help="Bytes per read [one packet, as live]."
 )

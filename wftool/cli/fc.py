@@ -10,6 +10,7 @@ from rich.table import Table
 from rich.text import Text
 
 from wftool import doctor as doctor_checks
+from wftool.cli.number import Number
 from wftool.cli.progress import PERCENT, ProgressBars
 from wftool.display import shown
 from wftool.errors import ProtocolError, UsageError, WftoolError
@@ -265,7 +266,7 @@ def info(port: str | None) -> None:
 @click.option("--restore", is_flag=True, help="Replay the backup after flashing.")
 @click.option(
     "--dfu-timeout",
-    type=float,
+    type=Number(0, 3600, min_open=True, unit="s"),
     default=30.0,
     show_default=True,
     help="Seconds to wait for the DFU bootloader.",

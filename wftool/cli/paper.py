@@ -9,6 +9,7 @@ from rich.console import Console
 
 from wftool.cli.analyze import PLOTTING, out, print_table
 from wftool.cli.build import project_option
+from wftool.cli.number import Number
 from wftool.cli.record import print_poll
 from wftool.display import shown
 from wftool.errors import UsageError
@@ -26,7 +27,7 @@ def paper_group() -> None:
 
 
 @paper_group.command("timing")
-@click.option("--duration", type=click.FloatRange(1.0, 3600.0), default=30.0, show_default=True,
+@click.option("--duration", type=Number(1.0, 3600.0, unit="s"), default=30.0, show_default=True,
               help="Seconds of FSP, then seconds of MSP.")  # fmt: skip
 @click.option(
     "--out",

@@ -12,6 +12,7 @@ from rich.console import Console
 from rich.table import Table
 
 from wftool.cli.fc import find_board, log, port_option
+from wftool.cli.number import Number
 from wftool.cli.sitl import build_sitl
 from wftool.errors import UsageError, VerificationFailed
 from wftool.fc.board import leave_open_cli
@@ -40,7 +41,7 @@ console = Console(highlight=False, width=None if sys.stdout.isatty() else 120)
     help="FSP baud rate.",
 )  # fmt: skip
 @click.option(
-    "--limit-ms", type=click.FloatRange(1, 1000), default=LIMIT_MS, show_default=True,
+    "--limit-ms", type=Number(1, 1000, unit="ms"), default=LIMIT_MS, show_default=True,
     help="The pilot's sticks back (safety pilot), or RXLOSS (OBC alone), within this long "
     "after the OBC's last fresh command.",
 )  # fmt: skip

@@ -15,6 +15,7 @@ import click
 from rich.console import Console
 from rich.table import Table
 
+from wftool.cli.number import SECONDS
 from wftool.display import shown
 from wftool.fc.msp import MspVersion
 from wftool.fc.msp_poller import DEFAULT_WINDOW, PAPER_SCHEDULE, PollResult, parse_schedule
@@ -31,7 +32,7 @@ def record_group() -> None:
 @record_group.command("msp")
 @click.option("--port", "url", required=True, help="The FC's MSP port: device or pyserial URL.")
 @click.option("--baud", type=click.IntRange(1), default=115200, show_default=True)
-@click.option("--duration", type=float, help="Seconds to poll [until Ctrl-C].")
+@click.option("--duration", type=SECONDS, help="Seconds to poll [until Ctrl-C].")
 @click.option(
     "--out",
     "out_path",

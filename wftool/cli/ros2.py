@@ -10,7 +10,8 @@ from typing import Any
 
 import click
 
-from wftool.cli.verify import _duration, _options, err
+from wftool.cli.number import SECONDS, Number
+from wftool.cli.verify import _options, err
 from wftool.errors import UsageError
 from wftool.fsp import DEFAULT_BAUDRATE, ESTIMATORS
 from wftool.fsp.packets import RC_PULSE_US
@@ -33,7 +34,7 @@ node_options = _options(
                  "send them to the FC. Each is sent at most once, only if fresh and in range; "
                  "the rest are dropped and counted on NAMESPACE/fsp/command_status."),
     click.option("--command-max-age", "command_max_age_ms",
-                 type=click.FloatRange(0, 1000, min_open=True), default=DEFAULT_MAX_AGE_NS / 1e6,
+                 type=Number(0, 1000, min_open=True, unit="ms"), default=DEFAULT_MAX_AGE_NS / 1e6,
                  show_default=True, metavar="MS",
                  help="How old (header.stamp) a command may be when it is sent."),
     click.option("--domain-id", type=click.IntRange(0, 232),
@@ -95,8 +96,7 @@ def describe(bridge: Ros2Bridge) -> list[str]:
 @click.option("--baud", type=click.IntRange(1), default=DEFAULT_BAUDRATE, show_default=True)
 @click.option(
     "--duration",
-    type=float,
-    callback=_duration,
+    type=SECONDS,
     metavar="SECONDS",
     help="Seconds to run [until Ctrl-C].",
 )

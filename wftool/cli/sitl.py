@@ -9,6 +9,7 @@ from typing import Any
 import click
 from rich.text import Text
 
+from wftool.cli.number import SECONDS, Number
 from wftool.cli.ros2 import node_from, node_options
 from wftool.cli.verify import criteria_options, err, run_options, session_from, verify_stream
 from wftool.display import shown
@@ -23,7 +24,6 @@ from wftool.sitl.process import (
     SIM_PORT_OFFSET,
     VirtualBoard,
 )
-from wftool.verify.live import check_duration
 from wftool.verify.session import VerifySession
 
 rate_option = click.option(
@@ -75,7 +75,7 @@ rate_option = click.option(
 )
 @click.option(
     "--gyro-clock-hz",
-    type=click.FloatRange(GYRO_HZ_MIN, GYRO_HZ_MAX),
+    type=Number(GYRO_HZ_MIN, GYRO_HZ_MAX, unit="Hz"),
     help="The rate its samples really come at, which the PID loop locks onto (a board's gyro "
     "runs off its own oscillator) [as --gyro-hz].",
 )
@@ -100,7 +100,7 @@ rate_option = click.option(
 @click.option(
     "--verify",
     "verify_s",
-    type=float,
+    type=SECONDS,
     metavar="SECONDS",
     help="Verify the stream for SECONDS, then stop with the verdict as exit code.",
 )
@@ -146,7 +146,6 @@ def sitl(
     from wftool.sitl.radio import HIGH
     from wftool.sitl.session import PILOT_ARM, PILOT_OVERRIDE, Motion, VirtualFcSession
 
-    check_duration(verify_s, "--verify")
     if options["accept_commands"] and not ros2:
         raise UsageError("--accept-commands is the ROS 2 node's: add --ros2")
     if options["accept_commands"] and options["uplink"]:

@@ -4,7 +4,6 @@ and judges; this module parses options and renders the dashboard."""
 from __future__ import annotations
 
 import json
-import math
 from collections.abc import Callable, Sequence
 from dataclasses import fields
 from pathlib import Path
@@ -15,6 +14,7 @@ from rich.console import Console
 from rich.live import Live
 from rich.text import Text
 
+from wftool.cli.number import SECONDS, Number
 from wftool.display import shown
 from wftool.errors import UsageError
 from wftool.fsp import DEFAULT_BAUDRATE, ESTIMATORS
@@ -26,7 +26,7 @@ from wftool.verify.dashboard import render
 from wftool.verify.foxglove import DEFAULT_HOST as FOXGLOVE_HOST
 from wftool.verify.foxglove import DEFAULT_PORT as FOXGLOVE_PORT
 from wftool.verify.foxglove import exposure_warning
-from wftool.verify.live import Commander, check_duration, check_uplink_lead
+from wftool.verify.live import LEAD_MAX_S, Commander, check_uplink_lead
 from wftool.verify.session import (
     VerifyResult,
     VerifySession,
@@ -47,41 +47,32 @@ def _options(*options: Callable) -> Callable:
     return decorate
 
 
-def _duration(_ctx: click.Context, param: click.Parameter, value: float | None) -> float | None:
-    return check_duration(value, param.opts[0])
+PERCENT = Number(0, 100, unit="%")
 
 
-def _lead(_ctx: click.Context, param: click.Parameter, value: float | None) -> float | None:
-    if value is not None:
-        check_uplink_lead(value / 1e3, param.opts[0])
-    return value
-
-
-def _limit(_ctx: click.Context, param: click.Parameter, value: float) -> float:
-    if math.isnan(value):
-        raise UsageError(f"{param.opts[0]} must be a number, not nan")
-    return value
+def _check_lead(lead_ms: float, name: str) -> None:
+    check_uplink_lead(lead_ms / 1e3, name)
 
 
 criteria_options = _options(
-    click.option("--expected-rate", type=float, help="Frame rate the FC should stream (Hz)."),
+    click.option("--expected-rate", type=Number(0, min_open=True, unit="Hz"),
+                 help="Frame rate the FC should stream (Hz)."),
     # Each limit's destination is its `Criteria` field: `criteria_from` passes them on as
     # they are.
-    click.option("--min-rate", "min_rate_hz", type=float,
+    click.option("--min-rate", "min_rate_hz", type=Number(0, unit="Hz"),
                  help="Minimum frame rate [95 % of expected]."),
-    click.option("--max-spread-ms", "max_spread_ms", type=float,
+    click.option("--max-spread-ms", "max_spread_ms", type=Number(0, unit="ms"),
                  help="Max FC-interval P99−P1 [half a period]."),
-    click.option("--max-loss", "max_loss_pct", type=float, default=Criteria.max_loss_pct,
+    click.option("--max-loss", "max_loss_pct", type=PERCENT, default=Criteria.max_loss_pct,
                  show_default=True, help="Max transport loss, % of frames."),
-    click.option("--max-fc-drops", "max_drops_pct", type=float,
+    click.option("--max-fc-drops", "max_drops_pct", type=PERCENT,
                  help="Max frames the FC dropped (queue full), % of frames "
                  f"[{Criteria.max_drops_pct:g}]."),
     click.option("--max-errors", "max_errors", type=click.IntRange(0),
                  default=Criteria.max_errors, show_default=True,
                  help="Max rejected chunks (COBS, length, version, CRC) and outlier packets."),
-    click.option("--max-outage", "max_outage_s", type=click.FloatRange(0),
+    click.option("--max-outage", "max_outage_s", type=Number(0, unit="s"),
                  default=Criteria.max_outage_s, show_default=True, metavar="SECONDS",
-                 callback=_limit,
                  help="Max time the port may be gone during the run, all outages together "
                  "(0: a reconnect fails the run)."),
     click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout."),
@@ -93,11 +84,13 @@ criteria_options = _options(
 
 run_options = _options(
     click.option("--uplink", is_flag=True, help="Send a command pattern and expect it back in RC."),
-    click.option("--uplink-rate", type=float, default=50.0, show_default=True,
-                 callback=lambda _ctx, param, value: check_uplink_rate(value, param.opts[0]),
+    click.option("--uplink-rate",
+                 type=Number(0, RATE_HZ_MAX, min_open=True, unit="commands/s",
+                             check=check_uplink_rate),
+                 default=50.0, show_default=True,
                  help=f"Commands per second (at most {RATE_HZ_MAX})."),
-    click.option("--uplink-lead", "uplink_lead_ms", type=float, metavar="MS",
-                 callback=_lead,
+    click.option("--uplink-lead", "uplink_lead_ms",
+                 type=Number(0, LEAD_MAX_S * 1e3, unit="ms", check=_check_lead), metavar="MS",
                  help="Send the pattern as timed commands (E4), each to act MS after it is "
                  "sent; the FC reports when each did [immediate commands]."),
     click.option("--record", "record_path", type=click.Path(path_type=Path),
@@ -230,7 +223,7 @@ def verify_stream(
 @click.option("--stream", is_flag=True, help="Verify the FSP stream (the one check so far).")
 @click.option("--port", "url", required=True, help="Serial device or pyserial URL (socket://…).")
 @click.option("--baud", type=click.IntRange(1), default=DEFAULT_BAUDRATE, show_default=True)
-@click.option("--duration", type=float, callback=_duration, metavar="SECONDS",
+@click.option("--duration", type=SECONDS, metavar="SECONDS",
               help="Seconds to run, then the verdict (Ctrl-C: stop, exit 130) [until Ctrl-C, "
               "then the verdict].")  # fmt: skip
 @run_options
