@@ -99,7 +99,7 @@ def test_the_books_count_what_the_fc_counted_even_across_lost_reports():
     # two reports lost: a late one and a refused one
     book.add(report(CommandOutcome.ON_TIME, (43, 3, 1, 0, 0, 0)))
     assert book.reports == 3 and book.commands == 5 and book.lost == 2
-    assert (book.applied, book.refused, book.dropped) == (4, 1, 0)
+    assert (book.applied, book.refused, book.counts[CommandOutcome.SUPERSEDED]) == (4, 1, 0)
     assert book.counts[CommandOutcome.LATE] == 1
 
 

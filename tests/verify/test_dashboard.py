@@ -106,4 +106,4 @@ def test_dashboard_shows_when_timed_commands_acted():
     text = screen(monitor)
     line = next(line for line in text.splitlines() if "timed 101 reports" in line)
     assert "P1 10 µs  P50 60 µs  P99 120 µs  (P99−P1 110 µs, 100 on time)" in line
-    assert "late 1  refused 0  dropped 0  reports lost 0  latest 4.000 ms" in text
+    assert "late 1  refused 0  superseded 0  reports lost 0  latest 4.000 ms" in text

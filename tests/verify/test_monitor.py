@@ -244,7 +244,7 @@ def test_the_fc_reports_on_timed_commands_are_summed_up():
     feed_timed(monitor, delays, outcomes)
     timed = monitor.summary().timed
     assert timed is not None
-    assert (timed.reports, timed.late, timed.refused, timed.dropped) == (203, 1, 1, 1)
+    assert (timed.reports, timed.late, timed.refused, timed.superseded) == (203, 1, 1, 1)
     assert timed.apply is not None and timed.apply.count == 200
     assert timed.apply.p1_us == 0 and 120 <= timed.apply.p99_us < 125  # the late one apart
     assert timed.latest_us == 3000 and timed.lost_reports == 0
@@ -252,3 +252,57 @@ def test_the_fc_reports_on_timed_commands_are_summed_up():
     assert data["timed"]["apply"]["spread_us"] == timed.apply.spread_us
     assert data["timed"]["outcomes"]["ON_TIME"] == 200
     assert judge(monitor.summary(), Criteria()).passed  # reported, never judged
+
+
+def judged_timed(outcomes: list[int], delays_us: list[int] | None = None) -> dict:
+    """The checks of the timed commands' verdict for a stream whose FC reported `outcomes`."""
+    monitor = StreamMonitor("socket://127.0.0.1:5762")
+    monitor.connected(0.0)
+    feed_timed(monitor, delays_us or [60] * len(outcomes), outcomes)
+    verdict = judge(monitor.summary(), Criteria(timed=True))
+    return {check.name: check for check in verdict.checks if check.name.startswith("timed")}
+
+
+def test_timed_commands_on_time_pass_their_own_criteria():
+    checks = judged_timed([CommandOutcome.ON_TIME] * 199 + [CommandOutcome.LATE])
+    assert all(check.passed for check in checks.values()), checks
+    assert set(checks) == {"timed commands on time", "timed commands late",
+                           "timed commands refused"}  # fmt: skip
+    assert checks["timed commands late"].value == 0.5  # %: within the 1 % allowed
+
+
+def test_timed_commands_applied_late_fail_the_verdict_named():
+    """A lead too short for the uplink's delay (0 ms): the FC applied every command after
+    its time. The verdict fails, naming the late commands and how late."""
+    checks = judged_timed([CommandOutcome.LATE] * 287, [2000 + k for k in range(287)])
+    late = checks["timed commands late"]
+    assert not late.passed and late.value == 100
+    assert late.describe() == (
+        "timed commands late: 100 % (limit ≤ 1 %): 287 of 287 applied late, the latest 2.29 "
+        "ms after its time"
+    )
+    assert not checks["timed commands on time"].passed
+
+
+def test_timed_commands_refused_fail_the_verdict_named():
+    outcomes = [CommandOutcome.ON_TIME] * 50 + [CommandOutcome.TOO_FAR] * 40
+    outcomes += [CommandOutcome.EXPIRED] * 3 + [CommandOutcome.SUPERSEDED] * 2
+    checks = judged_timed(outcomes)
+    refused = checks["timed commands refused"]
+    assert not refused.passed and refused.value == 43
+    assert refused.describe().endswith(": 43 of 95: too far 40, expired 3")
+    assert (
+        checks["timed commands on time"]
+        .describe()
+        .endswith("50 of 95 the FC reported on; 2 superseded")
+    )
+
+
+def test_timed_commands_the_fc_never_reported_on_fail_the_verdict():
+    monitor = StreamMonitor("test")
+    monitor.connected(0.0)
+    feed_steady(monitor, range(200), 0.0)
+    verdict = judge(monitor.summary(), Criteria(timed=True))
+    failed = [check for check in verdict.checks if not check.passed]
+    assert [check.name for check in failed] == ["timed commands on time"]
+    assert "the FC reported on none" in failed[0].describe()

@@ -17,8 +17,12 @@ import pytest
 
 from tests.conftest import run_cli
 from tests.recording.test_rosbag import read_bag
+from wftool.fsp import StateDecoder
+from wftool.fsp.timed import REFUSED
+from wftool.recording.reader import RecordingReader
 from wftool.sitl.process import free_port_base
 from wftool.sitl.session import Motion, VirtualFcSession
+from wftool.sitl.truth import TrueClock
 from wftool.verify.live import LiveOptions, run_live
 from wftool.verify.monitor import StreamMonitor
 
@@ -185,23 +189,93 @@ def test_sitl_verify_with_timed_commands_reports_when_they_acted(
     sitl_binary: Path, capsys: pytest.CaptureFixture[str], tmp_path: Path
 ) -> None:
     """`--uplink-lead`: the pattern goes out as timed commands once the clock locks; the FC's
-    reports say each acted within one PID period of its time; a recording replays to the same
-    figures (they come from the FC's reports in the stream)."""
+    reports say each acted within one PID period of its time, and the verdict judges them (on
+    time, late, refused); a recording replays to the same figures and verdict (they come from
+    the FC's reports in the stream). The lead, 20 ms, is longer than a loaded host's delivery
+    delay (tests/sitl/test_timed_commands.py)."""
     recording = tmp_path / "run.mcap"
     code, live, err = verify_json(
         capsys, "sitl", "--binary", str(sitl_binary), "--workdir", str(tmp_path / "fc"),
         "--port-base", str(free_port_base()), "--no-motion", "--time-reply", "--uplink",
-        "--uplink-rate", "100", "--uplink-lead", "5", "--verify", "12", "--record", str(recording),
+        "--uplink-rate", "100", "--uplink-lead", "20", "--verify", "12", "--record",
+        str(recording),
     )  # fmt: skip
-    assert code == 0, err
+    stalls = [a.fc_us for a in TrueClock(tmp_path / "fc" / "sitl.log").anchors
+              if a.reason == "host-lag"]  # fmt: skip
+    refused = refused_at(recording)
+    # The virtual FC's clock stands still while its host stalls it (then re-anchors): the
+    # OBC's clock runs on, so what it sends then arrives too far ahead by the FC's clock and is
+    # refused, rightly. A board's clock does not stand still. Nothing else is refused.
+    assert all(any(0 <= at - stall < 200_000 for stall in stalls) for at in refused), refused
+    failed = {c["name"] for c in live["verdict"]["checks"] if not c["passed"]}
+    assert failed == ({"timed commands refused"} if refused else set()), err
+    assert code == (1 if refused else 0), err
     timed = live["timed"]
     applied = timed["apply"]
     assert applied["count"] >= 200  # ~1 s of commands went out immediate, before the lock
     assert applied["p1_us"] >= 0 and applied["p99_us"] < 125  # one PID period at 8 kHz
     assert timed["outcomes"]["ON_TIME"] >= 0.9 * timed["reports"]
     assert live["uplink"]["steps_echoed"] >= 0.9 * live["uplink"]["steps_sent"]
+    judged = [c["name"] for c in live["verdict"]["checks"] if c["name"].startswith("timed")]
+    assert judged == ["timed commands on time", "timed commands late", "timed commands refused"]
     code, replayed, _ = verify_json(capsys, "replay", str(recording))
-    assert code == 0 and replayed["timed"] == timed
+    assert code == (1 if refused else 0) and replayed["timed"] == timed
+    assert replayed["verdict"] == live["verdict"]
+
+
+def refused_at(recording: Path) -> list[int]:
+    """The FC time of each refusal of a timed command (its report's event time), from the
+    recorded stream."""
+    decoder = StateDecoder(time_replies=True)
+    refused = []
+    for event in RecordingReader(recording).events():
+        if event.kind == "bytes":
+            decoder.feed(event.data, event.t)
+            for report in decoder.take_command_reports():
+                if report.outcome in REFUSED and report.event_time_us is not None:
+                    refused.append(report.event_time_us)
+    return refused
+
+
+def test_sitl_verify_with_timed_commands_sent_too_late_fails_naming_them(
+    sitl_binary: Path, capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    """Lead 0: each timed command is due when it is sent, so the FC takes it after its time
+    and applies it late. The run fails, and says so: the late commands, how many, how late."""
+    code, live, err = verify_json(
+        capsys, "sitl", "--binary", str(sitl_binary), "--workdir", str(tmp_path / "fc"),
+        "--port-base", str(free_port_base()), "--no-motion", "--uplink", "--uplink-lead", "0",
+        "--verify", "6",
+    )  # fmt: skip
+    assert code == 1, err
+    checks = {check["name"]: check for check in live["verdict"]["checks"]}
+    late = checks["timed commands late"]
+    assert not late["passed"] and late["value"] > 90, late
+    assert live["timed"]["outcomes"]["LATE"] >= 20  # 50 Hz once the clock locked
+    error = err.strip().splitlines()[-1]
+    assert error.startswith("error: stream verification failed: ") and "Traceback" not in err
+    assert f"timed commands late: {late['value']:g} % (limit ≤ 1 %): " in error, error
+    assert " applied late, the latest " in error
+
+
+def test_a_lead_the_fc_would_refuse_is_said_in_one_line(
+    sitl_binary: Path, capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    """A lead of 100 ms (the option allows up to 150) on an FC whose command timeout is 50 ms
+    (`fsp_cmd_timeout_ms`, E3): it would refuse every timed command as too far ahead. The
+    run stops once the FC says its timeout, with one line naming both (exit 2)."""
+    code, out, err = run_cli(
+        capsys, "sitl", "--binary", str(sitl_binary), "--workdir", str(tmp_path / "fc"),
+        "--port-base", str(free_port_base()), "--no-motion", "--uplink", "--uplink-lead", "100",
+        "--verify", "6",
+    )  # fmt: skip
+    assert code == 2, out + err
+    assert "Traceback" not in err
+    assert err.strip().splitlines()[-1] == (
+        "error: the uplink lead of 100 ms is at least the FC's command timeout (50 ms, "
+        "fsp_cmd_timeout_ms): the FC refuses every timed command due that far ahead; lead by "
+        "less than 50 ms"
+    )
 
 
 def test_an_uplink_lead_out_of_range_is_one_line(capsys: pytest.CaptureFixture[str]) -> None:

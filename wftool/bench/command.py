@@ -25,6 +25,7 @@ from wftool.fsp import (
     ReportBook,
     StateDecoder,
 )
+from wftool.fsp.timed import REFUSED
 from wftool.fsp.twoway import RoundTrip, TwoWayClockEstimator
 from wftool.sitl.process import SITL_BOARD, VirtualBoard
 from wftool.sitl.session import VirtualFcSession
@@ -65,9 +66,10 @@ class CommandRow:
     time reply (it answers the newest of a task run only)."""
     late: int
     refused: int
-    """Timed: too far ahead, or the queue full."""
-    dropped: int
-    """Timed: superseded by a newer command, or expired."""
+    """Timed: never applied for what the OBC sent (`wftool.fsp.timed.REFUSED`: too far
+    ahead, the queue full, expired)."""
+    superseded: int
+    """Timed: a newer command acted in its place."""
     unlocked: int
     """Timed: commands not sent because the clock had lost its lock (the SITL re-anchored
     after its host fell behind: the FC clock stepped against the host's)."""
@@ -334,8 +336,8 @@ def _row(
         sent=len(sent),
         applied=len(apply),
         late=outcomes[CommandOutcome.LATE],
-        refused=outcomes[CommandOutcome.TOO_FAR] + outcomes[CommandOutcome.QUEUE_FULL],
-        dropped=outcomes[CommandOutcome.SUPERSEDED] + outcomes[CommandOutcome.EXPIRED],
+        refused=sum(outcomes[outcome] for outcome in REFUSED),
+        superseded=outcomes[CommandOutcome.SUPERSEDED],
         unlocked=run.unlocked[rate] if mode == TIMED else 0,
         unreported=len(sent) - answered,
         apply=Distribution.of(apply),

@@ -373,14 +373,14 @@ def bench_command(
     spread = ("P1", "P50", "P99", "P99−P1", "max")
     table = Table(title="FC apply time − intended time, µs (true clock)", box=None, pad_edge=False)
     for column in ("command", "Hz", "lead ms", "sent", "applied", "late", "refused",
-                   "dropped", *spread):  # fmt: skip
+                   "superseded", *spread):  # fmt: skip
         table.add_column(column, justify="left" if column == "command" else "right")
     for row in result.rows:
         timed = row.mode == TIMED
         table.add_row(
             row.mode, f"{row.rate_hz:g}", f"{row.lead_ms:g}" if timed else "–",
             f"{row.sent:,}", f"{row.applied:,}",
-            *((f"{row.late}", f"{row.refused}", f"{row.dropped}") if timed else ("–",) * 3),
+            *((f"{row.late}", f"{row.refused}", f"{row.superseded}") if timed else ("–",) * 3),
             *_spread(row.apply),
         )  # fmt: skip
     out.print(table)

@@ -21,7 +21,7 @@ from wftool.fsp import DEFAULT_BAUDRATE, ESTIMATORS
 from wftool.fsp.schedule import RATE_HZ_MAX, RATE_HZ_MIN
 from wftool.recording.events import Sink
 from wftool.recording.recorder import RECORD_FORMATS
-from wftool.verify.criteria import Criteria, criteria_for
+from wftool.verify.criteria import FLAGS, Criteria, criteria_for
 from wftool.verify.dashboard import render
 from wftool.verify.foxglove import DEFAULT_HOST as FOXGLOVE_HOST
 from wftool.verify.foxglove import DEFAULT_PORT as FOXGLOVE_PORT
@@ -75,6 +75,10 @@ criteria_options = _options(
                  default=Criteria.max_outage_s, show_default=True, metavar="SECONDS",
                  help="Max time the port may be gone during the run, all outages together "
                  "(0: a reconnect fails the run)."),
+    click.option("--max-timed-late", "max_timed_late_pct", type=PERCENT,
+                 default=Criteria.max_timed_late_pct, show_default=True,
+                 help="With --uplink-lead: max timed commands the FC applied late (their time "
+                 "had come when it took them), % of those it reported on."),
     click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout."),
     click.option("--clock", type=click.Choice(ESTIMATORS),
                  help=f"Clock estimator for the OBC times: {ESTIMATORS[0]} (lower envelope), "
@@ -92,7 +96,8 @@ run_options = _options(
     click.option("--uplink-lead", "uplink_lead_ms",
                  type=Number(0, LEAD_MAX_S * 1e3, unit="ms", check=_check_lead), metavar="MS",
                  help="Send the pattern as timed commands (E4), each to act MS after it is "
-                 "sent; the FC reports when each did [immediate commands]."),
+                 "sent; the FC reports when each did, and the verdict judges it (less than the "
+                 "FC's command timeout) [immediate commands]."),
     click.option("--record", "record_path", type=click.Path(path_type=Path),
                  help="Record the run (messages and raw bytes): a rosbag2 directory, or one "
                  "MCAP file if the path ends in .mcap. `wftool replay` reads either."),
@@ -130,10 +135,12 @@ def expected_rate_from(
     return fc_frame_rate_hz(fc_url, fsp_rate)
 
 
-def criteria_from(uplink: bool, **options: Any) -> Criteria:
-    """The criteria the `criteria_options` ask for."""
-    limits = {field.name for field in fields(Criteria)} - {"uplink"}
-    return criteria_for(uplink=uplink, **{name: options[name] for name in limits})
+def criteria_from(uplink: bool, uplink_lead_ms: float | None = None, **options: Any) -> Criteria:
+    """The criteria the `criteria_options` ask for: the uplink judged if sent, and its timed
+    commands if it sends them."""
+    limits = {field.name for field in fields(Criteria)} - set(FLAGS)
+    timed = uplink_lead_ms is not None
+    return criteria_for(uplink=uplink, timed=timed, **{name: options[name] for name in limits})
 
 
 def _finish(result: VerifyResult, as_json: bool) -> None:

@@ -47,6 +47,12 @@ def fc_time_us(decoder: StateDecoder, obc_time: float) -> int:
     return (reference + round(offset)) % U32
 
 
+REFUSED = (CommandOutcome.TOO_FAR, CommandOutcome.QUEUE_FULL, CommandOutcome.EXPIRED)
+"""The outcomes of a timed command the FC never applied for what the OBC sent: too far
+ahead, the queue full, or expired (the OBC gone before its time, or the command arriving a
+command timeout after it). The others: applied on time, late, or superseded by a newer one."""
+
+
 class ReportBook:
     """Commands per outcome over a run of the FC's command reports, from the FC's own
     cumulative counts: a lost report loses no count, and says it was lost."""
@@ -88,8 +94,5 @@ class ReportBook:
 
     @property
     def refused(self) -> int:
-        return self.counts[CommandOutcome.TOO_FAR] + self.counts[CommandOutcome.QUEUE_FULL]
-
-    @property
-    def dropped(self) -> int:
-        return self.counts[CommandOutcome.SUPERSEDED] + self.counts[CommandOutcome.EXPIRED]
+        """Never applied, for what the OBC sent (`REFUSED`)."""
+        return sum(self.counts[outcome] for outcome in REFUSED)

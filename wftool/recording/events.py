@@ -22,6 +22,8 @@ EVENT_TOPIC = "/fsp/events"
 """Where a recording of the FSP stream keeps its events."""
 METADATA_NAME = "wftool.verify"
 """The metadata record of a recorded run (`run_metadata`)."""
+PLANNED_KEY = "duration_s"
+"""The metadata key of how long a recorded run was to last, s (empty: until stopped)."""
 
 
 class Event(NamedTuple):
@@ -101,12 +103,18 @@ def run_metadata(
     expected_rate_hz: float | None,
     uplink_rate_hz: float | None,
     clock: str = ESTIMATORS[0],
+    uplink_lead_s: float | None = None,
+    duration_s: float | None = None,
 ) -> dict[str, str]:
-    """What a recording keeps about its run, for a replay to set up the same monitor."""
+    """What a recording keeps about its run, for a replay to set up the same monitor and
+    judge it alike: the uplink's lead (its timed commands), and how long the run was to last
+    (a recording cut short says how much is missing)."""
     return {
         "port": port,
         "baud": str(baudrate),
         "expected_rate_hz": str(expected_rate_hz or ""),
         "uplink_rate_hz": str(uplink_rate_hz or ""),
         "clock": clock,
+        "uplink_lead_ms": "" if uplink_lead_s is None else f"{uplink_lead_s * 1e3:g}",
+        PLANNED_KEY: "" if duration_s is None else f"{duration_s:g}",
     }

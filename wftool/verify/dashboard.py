@@ -209,7 +209,7 @@ def _timed(summary: StreamSummary) -> Text | None:
         )
     latest = "–" if timed.latest_us is None else f"{timed.latest_us / 1e3:.3f} ms"
     text += (
-        f"\n  late {timed.late}  refused {timed.refused}  dropped {timed.dropped}  "
+        f"\n  late {timed.late}  refused {timed.refused}  superseded {timed.superseded}  "
         f"reports lost {timed.lost_reports}  latest {latest}"
     )
     return Text.from_markup(text)

@@ -49,7 +49,9 @@ class LiveOptions:
     """Send the uplink pattern at this rate; None sends nothing."""
     uplink_lead_s: float | None = None
     """Send the pattern as timed commands (E4, spec §13), each for this long after it is
-    sent, mapped to FC time by the run's clock (immediate until it locks); None: immediate."""
+    sent, mapped to FC time by the run's clock; None: immediate. Immediate until the clock
+    locks and the FC has reported its command timeout (E3): a lead of that timeout or more
+    stops the run (`UsageError`), as the FC would refuse every command."""
 
     def __post_init__(self) -> None:
         check_duration(self.duration_s)
@@ -65,6 +67,20 @@ def check_uplink_lead(lead_s: float | None, name: str = "the uplink lead") -> fl
         raise UsageError(
             f"{name} must be 0 to {LEAD_MAX_S * 1e3:g} ms (the FC refuses a timed command "
             f"due its command timeout or more ahead), not {lead_s * 1e3:g} ms"
+        )
+    return lead_s
+
+
+def check_lead_against_timeout(
+    lead_s: float, timeout_ms: int, name: str = "the uplink lead"
+) -> float:
+    """`lead_s`, if an FC whose command timeout is `timeout_ms` (E3) takes timed commands
+    sent that far ahead; else a one-line `UsageError`: it refuses every one (spec §13)."""
+    if lead_s * 1e3 >= timeout_ms:
+        raise UsageError(
+            f"{name} of {lead_s * 1e3:g} ms is at least the FC's command timeout "
+            f"({timeout_ms} ms, fsp_cmd_timeout_ms): the FC refuses every timed command "
+            f"due that far ahead; lead by less than {timeout_ms} ms"
         )
     return lead_s
 
@@ -219,11 +235,16 @@ class _LiveRun:
 
     def _send(self, port: FspPort, rc: tuple[int, ...], t: float) -> CommandPacket:
         lead = self._options.uplink_lead_s
-        if lead is not None:
+        decoder = self._monitor.decoder
+        status = decoder.uplink_status
+        # Until the FC says its command timeout, and the run's clock locks, the pattern goes
+        # out as immediate commands.
+        if lead is not None and status is not None:
+            check_lead_against_timeout(lead, status.timeout_ms)
             try:
-                return port.send_command(rc, now=t, at=t + lead, decoder=self._monitor.decoder)
+                return port.send_command(rc, now=t, at=t + lead, decoder=decoder)
             except ClockError:
-                pass  # until the run's clock locks, the pattern goes out as immediate commands
+                pass
         return port.send_command(rc, now=t)
 
     def _drop(self, t: float) -> None:

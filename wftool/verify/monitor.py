@@ -31,6 +31,7 @@ from wftool.fsp.encoder import U32_MASK
 from wftool.fsp.estimators import ESTIMATORS
 from wftool.fsp.framing import Rejection
 from wftool.fsp.packets import SEQ_MODULUS, rc_values
+from wftool.fsp.timed import REFUSED
 from wftool.fsp.twoway import RoundTrip, RoundTripRejection, TwoWayClockEstimator, TwoWayState
 from wftool.recording.events import Event, StreamHealth, UplinkReport
 from wftool.recording.ros2msg import SLOW_PERIOD_NS
@@ -58,22 +59,26 @@ class TimedSummary:
     """The latest any command was applied after its time (µs; late ones included)."""
 
     @property
+    def commands(self) -> int:
+        """Timed commands the FC reported on, by its counts."""
+        return sum(self.outcomes.values())
+
+    @property
+    def on_time(self) -> int:
+        return self.outcomes[CommandOutcome.ON_TIME.name]
+
+    @property
     def late(self) -> int:
         return self.outcomes[CommandOutcome.LATE.name]
 
     @property
     def refused(self) -> int:
-        return (
-            self.outcomes[CommandOutcome.TOO_FAR.name]
-            + self.outcomes[CommandOutcome.QUEUE_FULL.name]
-        )
+        """Never applied, for what the OBC sent (`wftool.fsp.timed.REFUSED`)."""
+        return sum(self.outcomes[outcome.name] for outcome in REFUSED)
 
     @property
-    def dropped(self) -> int:
-        return (
-            self.outcomes[CommandOutcome.SUPERSEDED.name]
-            + self.outcomes[CommandOutcome.EXPIRED.name]
-        )
+    def superseded(self) -> int:
+        return self.outcomes[CommandOutcome.SUPERSEDED.name]
 
 
 class TimedTracker:

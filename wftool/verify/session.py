@@ -61,7 +61,8 @@ class VerifySession:
 
     `uplink_rate_hz` sends the uplink pattern (None sends nothing), as timed commands
     `uplink_lead_s` ahead if given (E4: the FC reports when each acted, `summary.timed`);
-    `criteria.uplink` is what judges it (`criteria_for(uplink=True)`). `record_path` (in
+    `criteria.uplink` is what judges it (`criteria_for(uplink=True)`), and timed commands
+    are judged whenever they are sent (`criteria.timed`). `record_path` (in
     `record_format`, see `wftool.recording.reader`) and `csv_path` are created here, so a
     path that cannot be written fails before the run, and finished when the run ends,
     however it ends (`close()` them when the session is never run). `foxglove_port` serves
@@ -99,6 +100,8 @@ class VerifySession:
             check_uplink_rate(uplink_rate_hz)
         self.options = LiveOptions(url, baudrate, duration_s, uplink_rate_hz, uplink_lead_s)
         self.criteria = criteria or criteria_for(uplink=uplink_rate_hz is not None)
+        if uplink_lead_s is not None:
+            self.criteria = replace(self.criteria, timed=True)
         uplink = UplinkTracker() if uplink_rate_hz is not None else None
         self.monitor = StreamMonitor(url, expected_rate_hz, uplink=uplink, clock=clock)
         self._recorder: Recorder | None = None
@@ -107,7 +110,9 @@ class VerifySession:
         if foxglove_port is not None:  # first: a server closes without a trace, files do not
             self.live_view = FoxgloveLive(foxglove_port, foxglove_host)
         if record_path or csv_path:
-            metadata = run_metadata(url, baudrate, expected_rate_hz, uplink_rate_hz, clock)
+            metadata = run_metadata(
+                url, baudrate, expected_rate_hz, uplink_rate_hz, clock, uplink_lead_s, duration_s
+            )
             try:
                 self._recorder = Recorder(record_path, csv_path, metadata, record_format)
             except BaseException:
@@ -200,13 +205,14 @@ def replay(
     clock: str | None = None,
 ) -> VerifyResult:
     """The result of a `verify --record` recording (either format; a rosbag2 directory or
-    an MCAP file), computed again. The uplink is judged
-    when the recorded run sent it, whatever `criteria.uplink` says; `clock` None uses the
+    an MCAP file), computed again. The uplink is judged when the recorded run sent it, and
+    its timed commands when it sent them, whatever `criteria` says; `clock` None uses the
     recorded run's estimator."""
     recording = RecordingReader(path)
     monitor = replay_recording(recording, expected_rate_hz, clock)
-    criteria = replace(criteria or Criteria(), uplink=monitor.uplink is not None)
     summary = monitor.summary()
+    timed = bool(recording.metadata.get("uplink_lead_ms")) or summary.timed is not None
+    criteria = replace(criteria or Criteria(), uplink=monitor.uplink is not None, timed=timed)
     verdict = judge(summary, criteria)
     if recording.cut is not None:  # judged as far as it goes; the end of the run is missing
         note = f"recording {recording.path.name} was {recording.cut.describe()}"
