@@ -12,6 +12,7 @@ import contextlib
 import csv
 import json
 import os
+import re
 import signal
 import socket
 import struct
@@ -25,11 +26,13 @@ import pytest
 from mcap.reader import make_reader
 from mcap.writer import Writer as McapWriter
 from rosbags.highlevel import AnyReader
+from rosbags.rosbag2 import Reader
+from rosbags.rosbag2 import ReaderError as RosbagsReaderError
 from rosbags.typesys import Stores, get_typestore
 
 from tests.conftest import run_cli as run
 from tests.fc.stand_in import msp_stand_in
-from tests.recording.test_rosbag import flight
+from tests.recording.test_rosbag import flight, read_bag
 from tests.verify.fake_fc import PACKET_S, FakeFc
 from wftool.recording.events import Event
 from wftool.recording.recorder import Recorder
@@ -314,12 +317,14 @@ def size(path) -> int:
 
 
 def kill_while_recording(fc: FakeFc, record: Path, writer: bool) -> None:
-    """SIGKILL a verify run a few chunks into its recording: the run alone, or with its
-    recording's writer (as a power cut would; it runs in a session of its own)."""
+    """SIGKILL a verify run a few chunks into its recording (an MCAP file, or a bag
+    directory): the run alone, or with its recording's writer (as a power cut would; it runs
+    in a session of its own)."""
     process = wftool("verify", "--stream", "--port", fc.url, "--duration", "60",
                      "--record", str(record))  # fmt: skip
+    written = record / f"{record.name}_0.mcap" if record.suffix != ".mcap" else record
     deadline = time.monotonic() + 30
-    while time.monotonic() < deadline and size(record) < 300_000:  # a few chunks
+    while time.monotonic() < deadline and size(written) < 300_000:  # a few chunks
         time.sleep(0.1)
     for pid in writer_processes(process.pid) if writer else ():
         os.kill(pid, signal.SIGKILL)
@@ -340,6 +345,97 @@ def test_a_killed_run_leaves_its_recording_finished_by_its_writer(capsys, tmp_pa
     replayed = json.loads(out)
     assert replayed["frames"] > 1000 and replayed["lost_frames"] == 0
     assert not any("not finished" in note for note in replayed["verdict"]["notes"])
+
+
+CUT_SHORT = re.compile(
+    r"the recording was cut short at (?P<at>[0-9.]+) s \(of 60 planned\): (?P<why>.*)"
+)
+
+
+def bag_counts(bag: Path) -> tuple[int, int, dict[str, int]]:
+    """What rosbags (an independent reader) says a bag holds: messages, duration (ns) and
+    messages per topic, as its metadata.yaml lists them."""
+    with Reader(bag) as reader:
+        return (
+            reader.message_count,
+            reader.duration,
+            {c.topic: c.msgcount for c in reader.connections},
+        )
+
+
+def mcap_counts(path: Path) -> tuple[int, int, dict[str, int]]:
+    """The same figures from the MCAP file's own summary (the `mcap` library)."""
+    with open(path, "rb") as handle:
+        summary = make_reader(handle).get_summary()
+    assert summary is not None and summary.statistics is not None
+    stats = summary.statistics
+    topics = {c.topic: stats.channel_message_counts.get(i, 0) for i, c in summary.channels.items()}
+    span = stats.message_end_time - stats.message_start_time + 1  # as rosbags counts it
+    return stats.message_count, span, topics
+
+
+def test_a_killed_run_is_said_cut_short_and_its_bag_repaired(capsys, tmp_path):
+    """SIGKILL mid-run: its writer finishes the MCAP file, but metadata.yaml still lists what
+    the start wrote (no message, 0 s). replay says the recording was cut short, how far into
+    the 60 s planned, and reads what is there; `record repair` rebuilds metadata.yaml from
+    the file (as `ros2 bag reindex` does), after which rosbags reads the bag in full; the
+    recording still says it was cut short."""
+    record = tmp_path / "run"
+    with FakeFc() as fc:
+        kill_while_recording(fc, record, writer=False)
+    mcap = record / "run_0.mcap"
+    held, span, topics = mcap_counts(mcap)
+    assert held > 5000
+    assert bag_counts(record) == (0, 0, dict.fromkeys(topics, 0))  # as the run left it
+
+    code, out, err = run(capsys, "replay", str(record), "--json")
+    assert code in (0, 1), err
+    replayed = json.loads(out)
+    assert replayed["frames"] > 1000 and replayed["lost_frames"] == 0
+    cut = CUT_SHORT.fullmatch(replayed["verdict"]["notes"][-1])
+    assert cut is not None, replayed["verdict"]["notes"]
+    assert float(cut["at"]) == pytest.approx(replayed["duration_s"], abs=0.05)
+    assert 1.0 < float(cut["at"]) < 60
+    assert cut["why"].startswith("it was never closed")
+
+    code, out, err = run(capsys, "record", "repair", str(record))
+    assert (code, err) == (0, ""), err
+    said = " ".join(out.split())
+    assert f"run/metadata.yaml rebuilt from run_0.mcap: {held:,} messages over " in said
+    assert "(it listed 0)" in said and "cut short at " in said and "(of 60 planned)" in said
+    assert bag_counts(record) == (held, span, topics)
+    in_file = {topic: len(messages) for topic, messages in read_bag(record).items()}
+    assert in_file == {topic: n for topic, n in topics.items() if n}
+    code, out, _ = run(capsys, "replay", str(record), "--json")
+    assert json.loads(out) == replayed  # what was recorded is unchanged
+
+
+def test_a_killed_run_and_writer_leave_a_bag_repair_ends_again(capsys, tmp_path):
+    """The writer killed too (a power cut): the MCAP file has no ending, which rosbags
+    cannot read. `record repair` writes it again with one, every message that could be read
+    (the file as found kept beside it), and rebuilds metadata.yaml."""
+    record = tmp_path / "run"
+    with FakeFc() as fc:
+        kill_while_recording(fc, record, writer=True)
+    mcap = record / "run_0.mcap"
+    before = mcap.read_bytes()
+    with pytest.raises(RosbagsReaderError):
+        bag_counts(record)
+    code, out, _ = run(capsys, "replay", str(record), "--json")
+    cut = CUT_SHORT.fullmatch(json.loads(out)["verdict"]["notes"][-1])
+    assert cut is not None and cut["why"].startswith("run_0.mcap was not finished")
+    frames = json.loads(out)["frames"]
+
+    code, out, err = run(capsys, "record", "repair", str(record))
+    assert (code, err) == (0, ""), err
+    assert "run_0.mcap had no ending" in " ".join(out.split())
+    assert (record / "run_0.mcap.cut").read_bytes() == before
+    held, span, topics = mcap_counts(mcap)
+    assert bag_counts(record) == (held, span, topics) and held > 5000
+    code, out, _ = run(capsys, "replay", str(record), "--json")
+    assert json.loads(out)["frames"] == frames  # every frame the cut file held
+    code, _, err = run(capsys, "record", "repair", str(record))
+    assert code == 0, err  # again: nothing left to end, the metadata rebuilt alike
 
 
 def test_a_killed_run_and_writer_leave_a_recording_replay_reads_as_far_as_it_goes(capsys, tmp_path):

@@ -153,8 +153,9 @@ def _read_recording(path: Path) -> AccSeries:
     time_s = run.time_us[booked] * 1e-6
     motors = run.rpm[booked] / 60.0
     series = _continuous(str(path), np.repeat(run.epoch, 2)[booked], time_s, acc_g, motors)
-    if recording.cut is not None:
-        series.notes.append(f"the recording was {recording.cut.describe()}")
+    cut_short = recording.cut_short(float(np.nanmax(time_s) - np.nanmin(time_s)))
+    if cut_short is not None:
+        series.notes.append(f"the recording was {cut_short}")
     return series
 
 

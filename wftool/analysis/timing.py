@@ -202,8 +202,10 @@ def _recording_samples(path: Path, obc_clock: str | None = None) -> Samples:
             f"{path} is an MCAP file but no wftool recording (it has no "
             f"{EVENT_TOPIC} or {msp_recording.EVENT_TOPIC})"
         )
-    if reader.cut is not None:
-        samples.notes.append(f"the recording is {reader.cut.describe()}; analysed what it holds")
+    span_us = float(np.nanmax(samples.times_us) - np.nanmin(samples.times_us))
+    cut_short = reader.cut_short(span_us * 1e-6)
+    if cut_short is not None:
+        samples.notes.append(f"the recording was {cut_short}; analysed what it holds")
     return samples
 
 

@@ -26,7 +26,8 @@ err = Console(stderr=True, highlight=False)
 
 @click.group("record")
 def record_group() -> None:
-    """Record what an FC gives an OBC (the FSP stream: wftool verify --record)."""
+    """Record what an FC gives an OBC (the FSP stream: wftool verify --record); repair a
+    recording cut short."""
 
 
 @record_group.command("msp")
@@ -102,6 +103,22 @@ def record_msp_command(
     err.print(
         shown(f"wrote {path}" + (" (interrupted)" if result.interrupted else "")), soft_wrap=True
     )
+
+
+@record_group.command("repair")
+@click.argument("recording", type=click.Path(exists=True, path_type=Path))
+def record_repair_command(recording: Path) -> None:
+    """Make a recording cut short (its run killed) readable by any tool again, as `ros2 bag
+    reindex` does: a bag's metadata.yaml rebuilt from its MCAP file, and an MCAP file
+    without its ending written again with one (the file as found kept as NAME.mcap.cut).
+
+    RECORDING is a rosbag2 directory or an MCAP file. What was recorded is not changed: a
+    recording the run never closed still says so (wftool replay: "cut short at ...").
+    """
+    from wftool.recording.repair import repair
+
+    for line in repair(recording).describe():
+        out.print(shown(line), soft_wrap=True)
 
 
 def print_poll(result: PollResult, console: Console) -> None:

@@ -37,6 +37,11 @@ from mcap.writer import MCAP0_MAGIC, CompressionType, Writer
 
 from wftool.errors import RecordingError, UsageError
 
+try:
+    import fcntl
+except ImportError:  # not POSIX
+    fcntl = None  # type: ignore[assignment]
+
 CHUNK_SIZE = 1024 * 1024
 """Uncompressed bytes per chunk (the `mcap` default): what a full disk can cost."""
 APART_SPAN_NS = 1_000_000_000
@@ -82,6 +87,8 @@ class McapFile:
             raise UsageError(f"cannot write the recording: {path} already exists") from None
         except OSError as exc:
             raise UsageError(f"cannot write the recording: {exc}") from None
+        if fcntl is not None:  # held until the file is closed, or this process ends
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # new: nobody else holds it
         self._file = _TrackedFile(fd)
         # Chunks are cut here (`_write_chunks`), never by the writer on its own.
         writes_to = cast(IO[bytes], self._file)  # all a Writer uses: write, tell, flush
@@ -123,6 +130,11 @@ class McapFile:
         )
 
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
+        """A metadata record, after every message queued before it: a record that says the
+        recording was closed is written only once all it closes is."""
+        if self.failure is not None:
+            return
+        self._write_chunks()
         self._guarded(self._writer.add_metadata, name, data)
 
     def add_message(
@@ -316,6 +328,35 @@ def _indexed(stream: IO[bytes], chunk_indexes: list[ChunkIndex], channel: int) -
             if opcode != Opcode.MESSAGE or channel_id != channel:
                 raise McapError(f"the message index points at no message of channel {channel}")
             yield records[at + head.size : at + 9 + length]
+
+
+def ends_whole(handle: IO[bytes]) -> bool:
+    """Whether the MCAP file `handle` ends as a finished one does (else it is read
+    linearly); ValueError if it is empty or no MCAP file."""
+    handle.seek(0, os.SEEK_END)
+    size = handle.tell()
+    if size == 0:
+        raise ValueError("the file is empty")
+    handle.seek(0)
+    if handle.read(len(MCAP0_MAGIC)) != MCAP0_MAGIC:
+        raise ValueError("not an MCAP file")
+    handle.seek(max(0, size - len(MCAP0_MAGIC)))
+    whole = size >= 2 * len(MCAP0_MAGIC) and handle.read() == MCAP0_MAGIC
+    handle.seek(0)
+    return whole
+
+
+def being_written(handle: IO[bytes]) -> bool:
+    """Whether an `McapFile` is writing the file `handle` now: it holds the file's lock
+    while it does (and loses it when it ends, however it ends)."""
+    if fcntl is None:  # not POSIX: no lock to ask
+        return False
+    try:
+        fcntl.flock(handle.fileno(), fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return True
+    fcntl.flock(handle.fileno(), fcntl.LOCK_UN)
+    return False
 
 
 # -- reading a file that has no ending --------------------------------------------------------

@@ -40,7 +40,7 @@ from wftool.fc.msp_poller import (
 from wftool.link.transport import open_port
 from wftool.progress import Log, quiet
 from wftool.recording import ros2msg
-from wftool.recording.events import Event, EventKind
+from wftool.recording.events import PLANNED_KEY, Event, EventKind
 from wftool.recording.reader import RecordingReader
 from wftool.recording.rosbag import BagFile
 
@@ -66,8 +66,9 @@ def poll_metadata(
     window: int,
     version: int,
     serial_update_rate_hz: int | None = None,
+    duration_s: float | None = None,
 ) -> dict[str, str]:
-    """What an MSP recording keeps about its run."""
+    """What an MSP recording keeps about its run (how long it was to last, too)."""
     imu = [rate.rate_hz for rate in schedule if rate.cmd == Cmd.RAW_IMU]
     return {
         "port": port,
@@ -76,6 +77,7 @@ def poll_metadata(
         "msp_version": str(version),
         "expected_rate_hz": f"{imu[0]:g}" if imu else "",
         "serial_update_rate_hz": str(serial_update_rate_hz or ""),
+        PLANNED_KEY: "" if duration_s is None else f"{duration_s:g}",
     }
 
 
@@ -203,7 +205,7 @@ def record_msp(
     `wftool.fc.msp_poller`); the recording is finished however the run ends. A port that
     cannot be opened leaves no recording behind."""
     check_poll(schedule, window)
-    metadata = poll_metadata(url, schedule, window, int(version), serial_update_rate_hz)
+    metadata = poll_metadata(url, schedule, window, int(version), serial_update_rate_hz, duration_s)
     recorder = MspRecorder(path, metadata, acc_1g)  # an unwritable path fails before the run
     try:
         link = open_port(url, baudrate, timeout=0)

@@ -12,28 +12,29 @@ from __future__ import annotations
 import base64
 import json
 import math
-import os
 import struct
 from array import array
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, TYPE_CHECKING
+from typing import TYPE_CHECKING
 
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.records import Channel, Message, Metadata, Schema
-from mcap.writer import MCAP0_MAGIC
 
 from wftool.errors import UsageError
 from wftool.extras import require
 from wftool.fsp import ESTIMATORS
 from wftool.recording import ros2msg
-from wftool.recording.events import EVENT_KINDS, EVENT_TOPIC, METADATA_NAME, Event
-from wftool.recording.mcapfile import Cut, LinearReader, indexed_messages
+from wftool.recording.events import EVENT_KINDS, EVENT_TOPIC, METADATA_NAME, PLANNED_KEY, Event
+from wftool.recording.mcapfile import Cut, LinearReader, ends_whole, indexed_messages
 from wftool.recording.ros2msg import decode_event, decode_events
-from wftool.recording.rosbag import bag_file
+from wftool.recording.rosbag import CLOSED_KEY, bag_file
+
+REPAIR = "`wftool record repair`"
+"""The command that repairs a recording cut short (`wftool.recording.repair`)."""
 
 if TYPE_CHECKING:
     from wftool.fsp.columns import StateColumns
@@ -43,8 +44,9 @@ class RecordingReader:
     """A recording opened for reading, either format: the run's `metadata`, then its
     `events()` in recorded order. A file whose writer was killed (no summary, no footer)
     is read as far as it goes (`mcapfile.LinearReader`); once the events are read, `cut`
-    says how far. Anything that is not a recording, or not one as wftool writes them, is a
-    `UsageError` naming the file and what is wrong.
+    says how far. `closed` says whether the recording was closed, and `cut_short` what is
+    missing if it was not. Anything that is not a recording, or not one as wftool writes
+    them, is a `UsageError` naming the file and what is wrong.
 
     The FSP stream's events and metadata by default; another recording's by `topic` and
     `metadata_name` (the MSP baseline's, `wftool.recording.msp`). A file without
@@ -62,7 +64,7 @@ class RecordingReader:
         except OSError as exc:
             raise UsageError(f"cannot read recording {path}: {exc.strerror or exc}") from None
         try:
-            self._finished = _ends_whole(self._handle)
+            self._finished = ends_whole(self._handle)
             self.metadata = self._metadata()
             self.topics = self._topics()
         except (McapError, ValueError, EOFError, struct.error) as exc:
@@ -72,6 +74,33 @@ class RecordingReader:
         if topic is not None and topic not in self.topics:
             self._handle.close()
             raise UsageError(f"{path} has no {topic} topic: not a recording this command reads")
+
+    @property
+    def closed(self) -> bool | None:
+        """Whether the recording was closed when its run ended (`closed_in`)."""
+        return closed_in(self.metadata)
+
+    @property
+    def planned_s(self) -> float | None:
+        """How long the recorded run was to last (`planned_in`)."""
+        return planned_in(self.metadata)
+
+    def cut_short(self, recorded_s: float) -> str | None:
+        """What is missing of a recording that was not closed (its run killed, its writer
+        failed) or whose file has no ending, `recorded_s` into its run (from its first event
+        to its last, as read); None for one closed as it should be. After `events()`."""
+        if self.closed is not False and self.cut is None:
+            return None
+        planned = self.planned_s
+        said = f"cut short at {recorded_s:.1f} s"
+        if planned is not None:
+            said += f" (of {planned:g} planned)"
+        if self.cut is not None:
+            return f"{said}: {self.path.name} was {self.cut.describe()}"
+        return (
+            f"{said}: it was never closed (its run was killed, or its writer failed); read "
+            f"as far as it goes ({REPAIR} rebuilds a bag's metadata.yaml from it)"
+        )
 
     def expected_rate_hz(self) -> float | None:
         """The frame rate the recorded run expected (its metadata); None if it had none."""
@@ -239,21 +268,6 @@ def _connected_after(event: Event, connected: bool) -> bool:
     return connected
 
 
-def _ends_whole(handle: IO[bytes]) -> bool:
-    """Whether the file ends as a finished MCAP does (else it is read linearly)."""
-    handle.seek(0, os.SEEK_END)
-    size = handle.tell()
-    if size == 0:
-        raise ValueError("the file is empty")
-    handle.seek(0)
-    if handle.read(len(MCAP0_MAGIC)) != MCAP0_MAGIC:
-        raise ValueError("not an MCAP file")
-    handle.seek(max(0, size - len(MCAP0_MAGIC)))
-    whole = size >= 2 * len(MCAP0_MAGIC) and handle.read() == MCAP0_MAGIC
-    handle.seek(0)
-    return whole
-
-
 def _events(codec: str, data: bytes) -> list[Event]:
     """The events of one message as recorded (a CDR batch or single event, or JSON), or
     ValueError saying what is wrong."""
@@ -282,6 +296,24 @@ def _event(kind: object, t: object, payload: bytes, rc: Sequence[object]) -> Eve
     if any(isinstance(v, bool) or not isinstance(v, int) for v in rc):
         raise ValueError(f"an event's rc is {rc!r}, not whole numbers")
     return Event(kind, float(t), payload, tuple(rc))  # type: ignore[arg-type]
+
+
+def closed_in(metadata: dict[str, str]) -> bool | None:
+    """Whether a run's metadata says its recording was closed (`rosbag.CLOSED_KEY`): False
+    if the run was killed (or its writer failed) first; None for a recording made before
+    recordings said so."""
+    said = metadata.get(CLOSED_KEY)
+    return None if said is None else said == "true"
+
+
+def planned_in(metadata: dict[str, str]) -> float | None:
+    """How long a recorded run was to last by its metadata, s (None: until stopped, or not
+    said)."""
+    try:
+        planned = float(metadata.get(PLANNED_KEY) or "nan")
+    except ValueError:
+        return None
+    return planned if math.isfinite(planned) and planned > 0 else None
 
 
 def recording_topics(path: Path) -> set[str]:

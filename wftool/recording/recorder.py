@@ -14,6 +14,7 @@ import json
 import math
 import time
 from collections.abc import Sequence
+from contextlib import ExitStack
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -22,7 +23,7 @@ from wftool.errors import UsageError
 from wftool.fsp import SensorFrame, StatePacket
 from wftool.recording.events import EVENT_TOPIC, METADATA_NAME, Event, StreamHealth
 from wftool.recording.mcapprocess import McapProcess
-from wftool.recording.rosbag import RosbagWriter
+from wftool.recording.rosbag import CLOSED_KEY, RosbagWriter
 
 FRAME_TOPIC = "/fsp/frame"
 RECORD_FORMATS = ("ros2", "json")
@@ -104,7 +105,8 @@ class Recorder:
                 self._bag = RosbagWriter(mcap_path, METADATA_NAME, metadata)
             elif mcap_path is not None:
                 self._writer = writer = McapProcess(mcap_path, "", f"wftool {__version__}")
-                writer.add_metadata(METADATA_NAME, {**metadata, "wftool": __version__})
+                self._metadata = {**metadata, "wftool": __version__, CLOSED_KEY: "false"}
+                writer.add_metadata(METADATA_NAME, self._metadata)
                 self._frame_channel = _channel(writer, FRAME_TOPIC, FRAME_SCHEMA)
                 self._event_channel = _channel(writer, EVENT_TOPIC, EVENT_SCHEMA)
             if csv_path is not None:
@@ -189,7 +191,10 @@ class Recorder:
             if bag is not None:
                 bag.close()
             if writer is not None:
-                writer.finish()
+                with ExitStack() as finishing:
+                    finishing.callback(writer.finish)
+                    if writer.failure is None:  # one that failed is cut short: "false"
+                        writer.add_metadata(METADATA_NAME, {**self._metadata, CLOSED_KEY: "true"})
         finally:
             if csv_file is not None:
                 csv_file.close()

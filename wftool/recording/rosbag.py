@@ -45,6 +45,9 @@ TOPICS: dict[str, MessageType] = {
     EVENT_TOPIC: ros2msg.STREAM_EVENTS,
 }
 METADATA_VERSION = 8
+CLOSED_KEY = "closed"
+"""A recording's metadata says whether it was closed: "false" from its start, "true" once
+it is (written again at its end): one whose run was killed says "false" (cut short)."""
 EVENT_BATCH_S = 0.5
 """Events go into one `StreamEvents` message until it spans this long (OBC time)."""
 
@@ -66,7 +69,8 @@ class BagFile:
     with one CDR channel per topic of `topics` and `custom` as its metadata.
 
     `channels` maps each topic to the channel id `add` takes. `custom` may grow until
-    `close()`, which writes it again into metadata.yaml with the message counts.
+    `close()`, which writes it again, closed (`CLOSED_KEY`), into the MCAP file and into
+    metadata.yaml with the message counts.
     """
 
     def __init__(
@@ -87,7 +91,9 @@ class BagFile:
             self.directory, self.mcap_path = path, path / f"{path.name}_0.mcap"
             self.metadata_path = path / "metadata.yaml"
         self.topics = topics
+        self.metadata_name = metadata_name
         self.custom = custom
+        custom[CLOSED_KEY] = "false"
         created = False
         try:
             if self.directory is not None:
@@ -143,13 +149,19 @@ class BagFile:
         self._out = None
 
     def close(self) -> None:
-        """Finish the MCAP file and write the final metadata (also after a failure)."""
+        """Say it was closed, finish the MCAP file and write the final metadata (also after a
+        failure)."""
         if self._out is None:
             return
         out, self._out = self._out, None
         try:
-            out.finish()
+            with contextlib.ExitStack() as finishing:
+                finishing.callback(out.finish)
+                if out.failure is None:  # a failed recording is cut short: it says "false"
+                    out.add_metadata(self.metadata_name, {**self.custom, CLOSED_KEY: "true"})
         finally:
+            if out.failure is None:
+                self.custom[CLOSED_KEY] = "true"
             self._finish_metadata(out)
 
     def _finish_metadata(self, out: McapProcess) -> None:
@@ -177,12 +189,9 @@ class BagFile:
                 counts[by_id[channel]] = count
             if out.time_range is not None:
                 start, duration = out.time_range[0], out.time_range[1] - out.time_range[0]
-        text = _metadata_yaml(
-            self.mcap_path.name, self.topics, counts, start, duration, self.custom
-        )
-        temporary = self.metadata_path.with_suffix(".yaml.tmp")
-        temporary.write_text(text)
-        os.replace(temporary, self.metadata_path)
+        types = {topic: kind.name for topic, kind in self.topics.items()}
+        text = metadata_yaml(self.mcap_path.name, types, counts, start, duration, self.custom)
+        write_metadata(self.metadata_path, text)
 
     def _remove(self, created: bool) -> None:
         """Delete what this recording wrote, and nothing of another run's at its path: the
@@ -295,15 +304,23 @@ def _quoted(value: str) -> str:
     return json.dumps(value)  # a JSON string is a YAML double-quoted scalar
 
 
-def _metadata_yaml(
+def write_metadata(path: Path, text: str) -> None:
+    """metadata.yaml replaced by `text` at once (never half written)."""
+    temporary = path.with_suffix(".yaml.tmp")
+    temporary.write_text(text)
+    os.replace(temporary, path)
+
+
+def metadata_yaml(
     file_name: str,
-    topics: dict[str, MessageType],
+    topics: dict[str, str],
     counts: dict[str, int],
     start_ns: int,
     duration_ns: int,
     custom: dict,
 ) -> str:
-    """rosbag2's metadata.yaml (version 8): the fields every reader back to Humble needs."""
+    """rosbag2's metadata.yaml (version 8) of the MCAP file `file_name`, its topics by type
+    name: the fields every reader back to Humble needs."""
     total = sum(counts.values())
     lines = [
         "rosbag2_bagfile_information:",
@@ -314,11 +331,11 @@ def _metadata_yaml(
         f"  message_count: {total}",
         "  topics_with_message_count:",
     ]
-    for topic, kind in topics.items():
+    for topic, type_name in topics.items():
         lines += [
             "    - topic_metadata:",
             f"        name: {_quoted(topic)}",
-            f"        type: {_quoted(kind.name)}",
+            f"        type: {_quoted(type_name)}",
             "        serialization_format: cdr",
             '        offered_qos_profiles: ""',
             '        type_description_hash: ""',

@@ -214,7 +214,7 @@ def replay(
     timed = bool(recording.metadata.get("uplink_lead_ms")) or summary.timed is not None
     criteria = replace(criteria or Criteria(), uplink=monitor.uplink is not None, timed=timed)
     verdict = judge(summary, criteria)
-    if recording.cut is not None:  # judged as far as it goes; the end of the run is missing
-        note = f"recording {recording.path.name} was {recording.cut.describe()}"
-        verdict = replace(verdict, notes=(*verdict.notes, note))
+    cut_short = recording.cut_short(summary.duration_s)
+    if cut_short is not None:  # judged as far as it goes; the end of the run is missing
+        verdict = replace(verdict, notes=(*verdict.notes, f"the recording was {cut_short}"))
     return VerifyResult(summary, verdict, monitor.latest)
