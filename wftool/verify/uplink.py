@@ -60,6 +60,10 @@ class UplinkPattern:
         # A loop late by more than a period skips ahead: one command catches up, no burst.
         self.due = max(self.due + self.period, t - self.period)
 
+    def arming(self, t: float) -> None:
+        """The pattern never arms or disarms."""
+        return None
+
 
 @dataclass(frozen=True)
 class UplinkStats:
