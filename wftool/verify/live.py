@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from typing import Protocol
 
 from wftool.errors import ClockError, PortError, UsageError
-from wftool.fsp import ArmingAction, CommandPacket, CommandSender, FspPort, StatePacket
+from wftool.fsp import ArmingAction, CommandPacket, FspPort, StatePacket
 from wftool.recording.events import Event, Sink
 from wftool.verify.monitor import HealthSampler, StreamMonitor, StreamSummary
 from wftool.verify.uplink import UplinkPattern
@@ -144,8 +144,6 @@ class _LiveRun:
         self._backoff = BACKOFF_FIRST_S
         self._retry_at = 0.0
         self._commander = commander
-        self._sender = CommandSender(now)
-        """One sender for the run: a reconnect is the same OBC program (spec §11)."""
 
     def run(
         self, on_refresh: Callable[[StreamSummary], None] | None, stop: threading.Event | None
@@ -184,7 +182,7 @@ class _LiveRun:
             time.sleep(min(self._retry_at - t, end - t, READ_TIMEOUT_S))
             return None
         try:
-            port = FspPort(self._options.url, self._options.baudrate, sender=self._sender).open()
+            port = FspPort(self._options.url, self._options.baudrate).open()
         except PortError:
             if not self._connected_once:
                 raise  # the caller's connection error, not a dropout

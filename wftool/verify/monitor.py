@@ -419,7 +419,8 @@ class StreamMonitor:
         the FC's time reply with it). A replay has no packet: it is the one the live loop sent,
         from a port opened with the connection (seq counting from 0), stamped with `t`."""
         if self.uplink is not None:
-            self.uplink.sent(rc, t)
+            report = self.fc_uplink  # a pilot engages the OBC (spec §15): only then it echoes
+            self.uplink.sent(rc, t, report is None or report.status.steering is not False)
         if self._connected_at is None:
             return
         if command is None:
