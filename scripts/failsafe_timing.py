@@ -34,7 +34,6 @@ from wftool.fsp.packets import UplinkFlag
 from wftool.sitl.radio import SimulatedPilot
 from wftool.sitl.session import (
     FSP_UART,
-    OBC_ARM,
     PILOT_ARM,
     PILOT_OVERRIDE,
     Motion,
@@ -145,7 +144,7 @@ def safety_pilot(binary: Path, port_base: int | None, trials: int, timeout_ms: i
 def obc_alone(binary: Path, port_base: int | None, trials: int, timeout_ms: int) -> Results:
     results: Results = {}
     with (
-        session(binary, port_base, cmd_timeout_ms=timeout_ms, arm_switch=OBC_ARM) as fc,
+        session(binary, port_base, cmd_timeout_ms=timeout_ms) as fc,
         MspClient.open(fc.msp_url) as msp,
     ):
         watcher = FcWatcher(msp).start()

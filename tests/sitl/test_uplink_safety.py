@@ -32,7 +32,6 @@ from wftool.fsp.reader import FspPort
 from wftool.sitl.radio import SimulatedPilot
 from wftool.sitl.session import (
     FSP_UART,
-    OBC_ARM,
     PILOT_ARM,
     PILOT_OVERRIDE,
     Motion,
@@ -144,7 +143,6 @@ def test_obc_alone_stuck_is_rx_loss_then_failsafe(sitl_binary: Path, tmp_path: P
             tmp_path,
             motion=Motion(),
             port_base=None,
-            arm_switch=OBC_ARM,
             time_reply=True,
         ) as fc,
         MspClient.open(fc.msp_url) as msp,

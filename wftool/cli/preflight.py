@@ -119,7 +119,6 @@ def _on_sitl(
     from wftool.sitl.radio import SimulatedPilot
     from wftool.sitl.session import (
         FSP_UART,
-        OBC_ARM,
         PILOT_ARM,
         PILOT_OVERRIDE,
         Motion,
@@ -130,7 +129,7 @@ def _on_sitl(
     workdir = Path(tempfile.mkdtemp(prefix="wftool-preflight-"))
     session = VirtualFcSession(
         binary, workdir, motion=Motion(), port_base=port_base or None, pilot=not obc_only,
-        cmd_timeout_ms=cmd_timeout_ms, arm_switch=OBC_ARM if obc_only else None,
+        cmd_timeout_ms=cmd_timeout_ms,
         time_reply=True,  # preflight times by the FC clock (the host's is no measure of a SITL)
     )  # fmt: skip
     flown = "the OBC alone" if obc_only else "a safety pilot"

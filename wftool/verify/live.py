@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from typing import Protocol
 
 from wftool.errors import ClockError, PortError, UsageError
-from wftool.fsp import CommandPacket, FspPort, StatePacket
+from wftool.fsp import ArmingAction, CommandPacket, FspPort, StatePacket
 from wftool.recording.events import Event, Sink
 from wftool.verify.monitor import HealthSampler, StreamMonitor, StreamSummary
 from wftool.verify.uplink import UplinkPattern
@@ -88,7 +88,8 @@ def check_lead_against_timeout(
 class Commander(Protocol):
     """What decides the commands a live run sends (the uplink pattern, a ROS 2 node): the loop
     asks at `due` (math.inf: only when a read returns anyway) for `command(t)`, the command
-    to send at `t` (None: nothing), and tells `sent(t)` once the port took it."""
+    to send at `t` (None: nothing), tells `sent(t)` once the port took it, and then sends
+    the arming request (spec §14) `arming(t)` asks for with it, if any."""
 
     @property
     def due(self) -> float: ...
@@ -96,6 +97,8 @@ class Commander(Protocol):
     def command(self, t: float) -> Sequence[int] | None: ...
 
     def sent(self, t: float) -> None: ...
+
+    def arming(self, t: float) -> ArmingAction | None: ...
 
 
 def run_live(
@@ -229,23 +232,31 @@ class _LiveRun:
                     command = self._send(port, rc, t)
                     self._emit(Event("command", t, rc=rc), command)
                     commander.sent(t)
+                    action = commander.arming(t)
+                    if action is not None:
+                        port.send_arming(action, now=t)
         except PortError:
             self._drop(self._now())
         return t
 
     def _send(self, port: FspPort, rc: tuple[int, ...], t: float) -> CommandPacket:
+        """Send `rc`; a `UsageError` if it holds a value the FC's pulse range leaves out (spec
+        §5: the FC would refuse it whole), nothing sent."""
         lead = self._options.uplink_lead_s
         decoder = self._monitor.decoder
         status = decoder.uplink_status
-        # Until the FC says its command timeout, and the run's clock locks, the pattern goes
-        # out as immediate commands.
-        if lead is not None and status is not None:
-            check_lead_against_timeout(lead, status.timeout_ms)
-            try:
-                return port.send_command(rc, now=t, at=t + lead, decoder=decoder)
-            except ClockError:
-                pass
-        return port.send_command(rc, now=t)
+        try:
+            # Until the FC says its command timeout, and the run's clock locks, the pattern
+            # goes out as immediate commands.
+            if lead is not None and status is not None:
+                check_lead_against_timeout(lead, status.timeout_ms)
+                try:
+                    return port.send_command(rc, now=t, at=t + lead, decoder=decoder)
+                except ClockError:
+                    pass
+            return port.send_command(rc, now=t)
+        except ValueError as exc:
+            raise UsageError(f"cannot send the command {rc}: {exc}") from None
 
     def _drop(self, t: float) -> None:
         """The port is gone (or the run is over): close it, and retry after the backoff."""
