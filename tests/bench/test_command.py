@@ -14,8 +14,6 @@ import pytest
 from tests.conftest import run_cli
 from wftool.bench.command import IMMEDIATE, TIMED, run_command_bench
 
-pytestmark = pytest.mark.slow
-
 
 def test_timed_commands_act_at_the_pid_iteration_of_their_time(sitl_binary: Path) -> None:
     result = run_command_bench(sitl_binary, seconds=3.0, rates_hz=(100.0,))

@@ -21,8 +21,6 @@ from tests.conftest import run_cli
 from tests.sitl.test_process import sitl_pids, wait_for
 from wftool.sitl.process import free_port_base
 
-pytestmark = pytest.mark.slow
-
 
 def test_serving_records_and_serves_foxglove_until_interrupted(
     sitl_binary: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]

@@ -24,8 +24,6 @@ from wftool.firmware.targets import resolve_target
 
 from .conftest import commit_all, run_git
 
-pytestmark = pytest.mark.slow
-
 REPO = Path(__file__).resolve().parents[2]
 BOARD = "SPEEDYBEEF7V3"
 JOBS = min(os.cpu_count() or 1, 2)

@@ -28,8 +28,6 @@ from wftool.fsp.schedule import frame_rate_hz, lockstep_interval
 from wftool.sitl.process import VirtualBoard
 from wftool.sitl.session import Motion, VirtualFcSession
 
-pytestmark = pytest.mark.slow
-
 RATE_TOLERANCE = 0.05
 SETTLE_S = 6.0
 """`tasks` rates are moving averages over 64 runs: a 50 Hz task needs ~4 s to settle."""

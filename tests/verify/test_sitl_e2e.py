@@ -22,8 +22,6 @@ from wftool.sitl.session import Motion, VirtualFcSession
 from wftool.verify.live import LiveOptions, run_live
 from wftool.verify.monitor import StreamMonitor
 
-pytestmark = pytest.mark.slow
-
 
 @pytest.fixture
 def fsp_fc(sitl_binary: Path, tmp_path: Path) -> Iterator[VirtualFcSession]:
