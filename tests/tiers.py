@@ -42,11 +42,12 @@ SHARED_TREES = {
     "fresh_clone": "firmware-clone",
     "sitl_build": "firmware-clone",
     "board_build": "firmware-clone",
+    "firmware_tree": "firmware-clone",
     "unit_test_clone": "firmware-unit-tests",
 }
-"""The fixtures that hand out a clone to build or test in (they change its tree, its build
-outputs), with the xdist group of the tests that use one: they run on one worker, in turn.
-Tests that only read what was built take `sitl_binary`, `built_hex` or `firmware_tree`."""
+"""The fixtures that hand out a clone to build, patch or test in (its tree, its build outputs,
+its lock), with the xdist group of the tests that use one: they run on one worker, in turn.
+Tests that only run what was built take `sitl_binary` or `built_hex` (copies)."""
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -95,6 +96,19 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     if config.getoption(QUICK_OPTION):
         config.hook.pytest_deselected(items=other)
         items[:] = quick
+
+
+@pytest.hookimpl(trylast=True)  # after pytest-xdist has put the groups into the node ids
+def pytest_collection_finish(session: pytest.Session) -> None:
+    if not session.config.getoption("loadgroup", False):
+        return
+    for item in session.items:
+        mark = item.get_closest_marker("xdist_group")
+        if mark is not None and not item.nodeid.endswith(f"@{mark.args[0]}"):
+            raise pytest.UsageError(
+                f"pytest-xdist did not group {item.nodeid} (pytest {pytest.__version__}): "
+                "the tests that share a clone would run at once; see the test extra's pins"
+            )
 
 
 def _group(item: pytest.Item, names: list[str]) -> str | None:

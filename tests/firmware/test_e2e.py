@@ -30,7 +30,9 @@ JOBS = min(os.cpu_count() or 1, 2)
 
 
 @pytest.fixture(scope="session")
-def project(fresh_clone: Project) -> Project:
+def project(fresh_clone: Project, sitl_build, board_build) -> Project:
+    """The run's clone, its builds made first: one another test started meanwhile would hold
+    the clone's lock while these run wftool in it ("waiting for another wftool run")."""
     return fresh_clone
 
 
