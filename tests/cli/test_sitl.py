@@ -18,7 +18,8 @@ import pytest
 from rosbags.rosbag2 import Reader
 
 from tests.conftest import run_cli
-from tests.sitl.test_process import sitl_pids, wait_for
+from tests.sitl.test_process import sitl_pids
+from tests.waits import wait_for
 from wftool.sitl.process import free_port_base
 
 
