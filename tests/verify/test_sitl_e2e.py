@@ -17,6 +17,7 @@ import pytest
 
 from tests.conftest import run_cli
 from tests.recording.test_rosbag import read_bag
+from tests.waits import wait_for
 from wftool.sitl.process import free_port_base
 from wftool.sitl.session import Motion, VirtualFcSession
 from wftool.verify.live import LiveOptions, run_live
@@ -107,8 +108,10 @@ def test_sitl_killed_and_restarted_mid_run_is_survived(fsp_fc: VirtualFcSession)
 
     thread = threading.Thread(target=verify)
     thread.start()
-    time.sleep(3)
-    before = monitor.summary().frames
+    # its frames so far: the decoder's count (summary() is no call to make while it reads)
+    stats = monitor.decoder.stats
+    assert wait_for(lambda: stats.frames > 2000, 60)  # 2 s of stream
+    before = stats.frames
     fsp_fc.fc.stop()  # the FC vanishes mid-run ...
     time.sleep(2)
     fsp_fc.fc.start()  # ... and comes back with its saved configuration
