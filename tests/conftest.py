@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from hypothesis import HealthCheck, settings
 
 from tests import shared
 from tests.fc.faulty_transport import FaultyTransport, InjectFaults
@@ -37,6 +38,11 @@ from wftool.ros2 import typesupport
 from wftool.sitl.process import VirtualFC
 
 pytest_plugins = ["tests.tiers", "pytester"]
+
+# Hypothesis' per-example deadline and its "generation is slow" health check time the host:
+# on a loaded one (a full parallel run, another session's build) they fail what passes.
+settings.register_profile("wftool", deadline=None, suppress_health_check=[HealthCheck.too_slow])
+settings.load_profile("wftool")
 
 REPO = Path(__file__).resolve().parent.parent
 BUILD_JOBS = min(os.cpu_count() or 1, 2)
