@@ -11,6 +11,7 @@ tests at an existing binary instead. Every virtual FC a test starts takes a free
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import os
 import random
 import shutil
@@ -20,7 +21,9 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from hypothesis import HealthCheck, settings
 
+from tests import shared
 from tests.fc.faulty_transport import FaultyTransport, InjectFaults
 from wftool.cli import fc as fc_commands
 from wftool.cli import main
@@ -28,10 +31,18 @@ from wftool.errors import MspError
 from wftool.fc import params
 from wftool.fc.cli_session import CliSession
 from wftool.fc.msp import MspClient
-from wftool.firmware import BuildOptions, BuildResult, build
+from wftool.firmware import BuildOptions, BuildResult, build, patches, tree
 from wftool.firmware.project import Project
+from wftool.firmware.targets import SITL, resolve_target
 from wftool.ros2 import typesupport
 from wftool.sitl.process import VirtualFC
+
+pytest_plugins = ["tests.tiers", "pytester"]
+
+# Hypothesis' per-example deadline and its "generation is slow" health check time the host:
+# on a loaded one (a full parallel run, another session's build) they fail what passes.
+settings.register_profile("wftool", deadline=None, suppress_health_check=[HealthCheck.too_slow])
+settings.load_profile("wftool")
 
 REPO = Path(__file__).resolve().parent.parent
 BUILD_JOBS = min(os.cpu_count() or 1, 2)
@@ -43,20 +54,47 @@ def vectors_dir() -> Path:
     return REPO / "spec" / "vectors"
 
 
-@pytest.fixture(scope="session")
-def fresh_clone(tmp_path_factory: pytest.TempPathFactory) -> Project:
-    """A fresh `git clone` of this repository, with the submodule not initialised."""
+def _head() -> str:
+    return _git(REPO, "rev-parse", "HEAD")
+
+
+def _clone_of_head(factory: pytest.TempPathFactory, name: str, *, patched: bool = False) -> Project:
+    """A `git clone` of this repository's HEAD, with the submodule not initialised (or,
+    `patched`, fetched and at the series): made once per test run under NAME, shared by its
+    workers (tests/shared.py)."""
     if not (REPO / ".git").exists():
         pytest.skip("not running from a git checkout of wftool")
-    url = _git(REPO, "config", "-f", ".gitmodules", "submodule.betaflight.url")
-    reachable = subprocess.run(
-        ["git", "ls-remote", "--exit-code", url, "HEAD"], capture_output=True, timeout=120
-    )
-    if reachable.returncode != 0:
-        pytest.skip(f"Betaflight repository {url} unreachable")
-    root = tmp_path_factory.mktemp("clone") / "wftool"
-    _git(REPO, "clone", "-q", str(REPO), str(root))
-    return Project(root)
+
+    def clone(directory: Path) -> Project:
+        url = _git(REPO, "config", "-f", ".gitmodules", "submodule.betaflight.url")
+        reachable = subprocess.run(
+            ["git", "ls-remote", "--exit-code", url, "HEAD"], capture_output=True, timeout=120
+        )
+        if reachable.returncode != 0:
+            pytest.skip(f"Betaflight repository {url} unreachable")
+        root = directory / "wftool"
+        _git(REPO, "clone", "-q", str(REPO), str(root))
+        project = Project(root)
+        if patched:
+            tree.ensure_tree(project, resolve_target(project, SITL))
+            patches.apply(project)
+        return project
+
+    return shared.once(factory, f"{name}-{_head()[:12]}", clone)
+
+
+@pytest.fixture(scope="session")
+def fresh_clone(tmp_path_factory: pytest.TempPathFactory) -> Project:
+    """A fresh clone of this repository, where the run's firmware is built."""
+    return _clone_of_head(tmp_path_factory, "clone")
+
+
+@pytest.fixture(scope="session")
+def unit_test_clone(tmp_path_factory: pytest.TempPathFactory) -> Project:
+    """A clone of its own for Betaflight's unit tests, its tree fetched and patched: they
+    check out src/test and compile into the tree's obj/test, kept apart from the builds in
+    `fresh_clone`, so that both run at once without sharing a git index."""
+    return _clone_of_head(tmp_path_factory, "unit-test-clone", patched=True)
 
 
 @contextlib.contextmanager
@@ -69,27 +107,54 @@ def _build_date(project: Project) -> Iterator[None]:
         yield
 
 
-@pytest.fixture(scope="session")
-def sitl_build(fresh_clone: Project) -> BuildResult:
-    """The first build of the session: fetches the tree, applies the series, builds SITL."""
-    with _build_date(fresh_clone):
-        return build(fresh_clone, "sitl", BuildOptions(jobs=BUILD_JOBS))
+def _first_build(
+    factory: pytest.TempPathFactory, project: Project, target: str
+) -> tuple[BuildResult, Path]:
+    """The run's build of TARGET in the clone, and a copy of its firmware file that later
+    builds in the clone (other flags, tests/firmware/test_e2e.py) leave alone."""
+
+    def make(directory: Path) -> tuple[BuildResult, Path]:
+        with _build_date(project):
+            result = build(project, target, BuildOptions(jobs=BUILD_JOBS))
+        kept = directory / result.firmware.name
+        shutil.copy2(result.firmware, kept)
+        return result, kept
+
+    return shared.once(factory, f"{target}-build-{_head()[:12]}", make)
 
 
 @pytest.fixture(scope="session")
-def board_build(fresh_clone: Project, sitl_build: BuildResult) -> BuildResult:
+def sitl_build(fresh_clone: Project, tmp_path_factory: pytest.TempPathFactory) -> BuildResult:
+    """The run's first build: fetches the tree, applies the series, builds SITL."""
+    return _first_build(tmp_path_factory, fresh_clone, "sitl")[0]
+
+
+@pytest.fixture(scope="session")
+def board_build(
+    fresh_clone: Project, sitl_build: BuildResult, tmp_path_factory: pytest.TempPathFactory
+) -> BuildResult:
     """speedybeef7v3 in the same clone (widens the sparse checkout to STM32F7)."""
-    with _build_date(fresh_clone):
-        return build(fresh_clone, "speedybeef7v3", BuildOptions(jobs=BUILD_JOBS))
+    return _first_build(tmp_path_factory, fresh_clone, "speedybeef7v3")[0]
 
 
 @pytest.fixture(scope="session")
-def sitl_binary(request: pytest.FixtureRequest) -> Path:
-    """The patched SITL: WFTOOL_SITL_BINARY if set, else this session's build."""
+def board_firmware(
+    fresh_clone: Project, board_build: BuildResult, tmp_path_factory: pytest.TempPathFactory
+) -> Path:
+    """The board build's hex as it was built (a copy no later build in the clone changes)."""
+    return _first_build(tmp_path_factory, fresh_clone, "speedybeef7v3")[1]
+
+
+@pytest.fixture(scope="session")
+def sitl_binary(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The patched SITL: WFTOOL_SITL_BINARY if set, else this run's build (a copy no later
+    build in the clone changes)."""
     path = os.environ.get("WFTOOL_SITL_BINARY")
     if path:
         return Path(path)
-    return request.getfixturevalue("sitl_build").firmware
+    project = request.getfixturevalue("fresh_clone")
+    request.getfixturevalue("sitl_build")
+    return _first_build(tmp_path_factory, project, "sitl")[1]
 
 
 @pytest.fixture(scope="session")
@@ -171,7 +236,9 @@ def ros2_env() -> None:
     built into this environment (once; cached while the .msg files are unchanged).
 
     The session gets a DDS domain of its own and discovery on this host, so that other test
-    sessions on the machine are not heard; subprocesses inherit both."""
+    sessions on the machine are not heard; subprocesses inherit both. The workers of one
+    run (pytest-xdist) take consecutive domains from one random start, so none hears
+    another."""
     try:
         import rclpy  # noqa: F401
     except ImportError as exc:
@@ -182,5 +249,16 @@ def ros2_env() -> None:
     if shutil.which("cmake") is None:
         pytest.skip("cmake not installed (scripts/setup installs it when run as root)")
     typesupport.build()
-    os.environ["ROS_DOMAIN_ID"] = str(random.SystemRandom().randrange(1, 100))
+    os.environ["ROS_DOMAIN_ID"] = str(_ros_domain())
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+
+
+def _ros_domain() -> int:
+    """A DDS domain of 1-100: random for the run, one apart per xdist worker ("gw3": 3)."""
+    run = os.environ.get("PYTEST_XDIST_TESTRUNUID")
+    if run:
+        start = int(hashlib.sha256(run.encode()).hexdigest(), 16)
+    else:
+        start = random.SystemRandom().randrange(100)
+    worker = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").lstrip("gw") or 0)
+    return 1 + (start + worker) % 100

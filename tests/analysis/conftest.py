@@ -1,8 +1,8 @@
 """Fixtures for the analysis tests: the patched tree, the compiled harness, the M7 image.
 
-The tree comes from the session's fresh clone (tests/conftest.py), fetched and patched by
-the same code `wftool analyze accfilter` uses; compiling needs gcc, the M7 image needs the
-ARM toolchain and Unicorn. Each fixture skips, with the reason, only when that is absent.
+The tree is the one the run's firmware was built from (`firmware_tree`, tests/conftest.py),
+patched by the same code `wftool analyze accfilter` uses; compiling needs gcc, the M7 image
+needs the ARM toolchain and Unicorn. Each fixture skips, with the reason, only when that is absent.
 """
 
 from __future__ import annotations
@@ -12,15 +12,13 @@ from pathlib import Path
 
 import pytest
 
-from wftool.firmware.project import Project
-
 
 @pytest.fixture(scope="session")
-def filter_tree(fresh_clone: Project) -> Path:
+def filter_tree(firmware_tree: Path) -> Path:
     """betaflight/ of the fresh clone, holding the patch series."""
     from wftool.analysis.sources import patched_tree
 
-    return patched_tree(fresh_clone.root)
+    return patched_tree(firmware_tree.parent)
 
 
 @pytest.fixture(scope="session")
@@ -42,14 +40,14 @@ def host_harness(filter_sources, tmp_path_factory: pytest.TempPathFactory):
 
 
 @pytest.fixture(scope="session")
-def m7_image(fresh_clone: Project, filter_sources, tmp_path_factory: pytest.TempPathFactory):
+def m7_image(firmware_tree: Path, filter_sources, tmp_path_factory: pytest.TempPathFactory):
     """The harness and filter built for the Cortex-M7 with Betaflight's F7 flags."""
     from wftool.analysis.m7 import build_image
     from wftool.analysis.sources import arm_gcc
     from wftool.errors import ToolchainError
 
     try:
-        gcc = arm_gcc(fresh_clone.root)
+        gcc = arm_gcc(firmware_tree.parent)
     except ToolchainError as exc:
         pytest.skip(f"no ARM toolchain: {exc}")
     return build_image(filter_sources, tmp_path_factory.mktemp("m7"), gcc)

@@ -17,8 +17,6 @@ from wftool.analysis import accfilter  # noqa: E402 - after the extra's check
 from wftool.analysis.flight import FlightSpec  # noqa: E402
 from wftool.analysis.harness import PRESETS  # noqa: E402
 
-pytestmark = pytest.mark.slow  # the fixtures fetch the Betaflight tree
-
 
 def test_flight_figures_match_theory_and_follow_the_settings(host_harness):
     """A steady flight: the cross-spectrum delay is the coefficients' delay; H2 needs harmonics."""
@@ -42,11 +40,11 @@ def test_flight_figures_match_theory_and_follow_the_settings(host_harness):
     assert harmonics3.group_delay_mean_ms > paper.group_delay_mean_ms
 
 
-def test_accfilter_command_writes_report_and_series(fresh_clone, capsys, tmp_path):
+def test_accfilter_command_writes_report_and_series(firmware_tree, capsys, tmp_path):
     pytest.importorskip("unicorn", reason="needs the analysis extra (Unicorn)")
     out_dir = tmp_path / "report"
     code, stdout, stderr = run_cli(
-        capsys, "analyze", "accfilter", "--project", str(fresh_clone.root),
+        capsys, "analyze", "accfilter", "--project", str(firmware_tree.parent),
         "--config", "paper", "--config", "narrow:q=800,harmonics=2", "--rate", "1000",
         "--duration", "4", "--repeat", "2", "--out", str(out_dir),
     )  # fmt: skip

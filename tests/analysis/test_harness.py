@@ -40,7 +40,6 @@ def worst_axis_gain_db(harness, settings, rate: int, motors, tone_hz: float) -> 
     return float(np.max(10 * np.log10(np.sum(out[settled] ** 2, axis=0) / power_in)))
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("rate", [800, 1000])
 def test_motor_tone_is_notched_and_motion_passes(host_harness, rate):
     """The unit test's thresholds: > 20 dB at a motor frequency, < 0.5 dB change at 5 Hz."""
@@ -51,7 +50,6 @@ def test_motor_tone_is_notched_and_motion_passes(host_harness, rate):
     assert worst_axis_gain_db(host_harness, paper, rate, UNIT_TEST_MOTORS, 330.0) > -3.0
 
 
-@pytest.mark.slow
 def test_the_harness_runs_the_trees_code(filter_sources, tmp_path):
     """The same harness, built from an acc_rpm_filter.c that never activates, stops notching."""
     from wftool.analysis.harness import HostHarness, compile_host_library
@@ -86,7 +84,6 @@ def cascade_group_delay_ms(coefficients, frequencies_hz, rate):
     return 1e3 * delay / rate
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize(
     ("preset", "rate", "motors"),
     [

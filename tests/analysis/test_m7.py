@@ -7,7 +7,6 @@ import pytest
 from wftool.analysis.harness import PRESETS
 
 pytest.importorskip("numpy", reason="needs the analysis extra (NumPy)")
-pytestmark = pytest.mark.slow  # the fixtures fetch the Betaflight tree
 
 
 def test_counts_agree_with_disassembly_and_output_with_the_host(m7, host_harness):

@@ -7,13 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from wftool.firmware.project import Project
-
-pytestmark = pytest.mark.slow  # the fixtures fetch the Betaflight tree
-
 
 @pytest.fixture(scope="module")
-def queue_m7(fresh_clone: Project, filter_tree: Path, tmp_path_factory: pytest.TempPathFactory):
+def queue_m7(firmware_tree: Path, filter_tree: Path, tmp_path_factory: pytest.TempPathFactory):
     pytest.importorskip("unicorn", reason="needs the analysis extra (Unicorn)")
     from wftool.analysis import timedcost
     from wftool.analysis.m7 import M7Harness, build_image
@@ -21,7 +17,7 @@ def queue_m7(fresh_clone: Project, filter_tree: Path, tmp_path_factory: pytest.T
     from wftool.errors import ToolchainError
 
     try:
-        gcc = arm_gcc(fresh_clone.root)
+        gcc = arm_gcc(firmware_tree.parent)
     except ToolchainError as exc:
         pytest.skip(f"no ARM toolchain: {exc}")
     scratch = tmp_path_factory.mktemp("queue")

@@ -1,8 +1,9 @@
 """`bench command` on the virtual FC: immediate against timed commands, judged by its true clock.
 
-Behaviour, not timing: every timed command gets the FC's report, the FC applies an on-time
-command at the first PID iteration at or after its time (never before, never a period
-after), and what the FC says it applied is what its frames then carry.
+Behaviour, not timing: every timed command sent gets the FC's report, the FC applies an
+on-time command at the first PID iteration at or after its time (never before, never a
+period after), and what the FC says it applied is what its frames then carry; none is sent
+without a locked clock.
 """
 
 from __future__ import annotations
@@ -14,8 +15,6 @@ import pytest
 from tests.conftest import run_cli
 from wftool.bench.command import IMMEDIATE, TIMED, run_command_bench
 
-pytestmark = pytest.mark.slow
-
 
 def test_timed_commands_act_at_the_pid_iteration_of_their_time(sitl_binary: Path) -> None:
     result = run_command_bench(sitl_binary, seconds=3.0, rates_hz=(100.0,))
@@ -23,8 +22,14 @@ def test_timed_commands_act_at_the_pid_iteration_of_their_time(sitl_binary: Path
     rows = {row.mode: row for row in result.rows}
     assert set(rows) == {IMMEDIATE, TIMED}
     timed, immediate = rows[TIMED], rows[IMMEDIATE]
-    assert timed.sent == immediate.sent == 300
-    assert timed.unreported == 0 and timed.unlocked == 0 and result.lost_reports == 0
+    assert immediate.sent == 300
+    # A timed command goes out only while the OBC's clock is locked (else ClockError). A host
+    # that falls 50 ms behind the virtual FC makes its lockstep clock re-anchor: a step of
+    # the FC clock, which the OBC's clock learns anew. Then, and only then, commands are not
+    # sent (how many is a figure of `wftool bench command`, as is the re-anchor).
+    assert timed.sent + timed.unlocked == 300
+    assert timed.unlocked == 0 or result.reanchors > 0, (timed.unlocked, result.lateness)
+    assert timed.unreported == 0 and result.lost_reports == 0
     assert timed.applied + timed.refused + timed.superseded == timed.sent
     assert timed.refused == 0  # 5 ms ahead: well inside the command timeout and the queue
     own = timed.asked

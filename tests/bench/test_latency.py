@@ -19,8 +19,6 @@ import wftool.bench.latency
 from wftool.bench.latency import run_latency_bench
 from wftool.sitl.session import VirtualFcSession
 
-pytestmark = pytest.mark.slow
-
 
 def test_two_way_offset_holds_the_true_clock_within_its_uncertainty(sitl_binary: Path) -> None:
     result = run_latency_bench(sitl_binary, seconds=15.0)

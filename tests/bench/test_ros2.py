@@ -9,7 +9,7 @@ import pytest
 
 from wftool.bench.ros2 import run_ros2_bench
 
-pytestmark = [pytest.mark.slow, pytest.mark.usefixtures("ros2_env")]
+pytestmark = pytest.mark.usefixtures("ros2_env")
 
 
 def test_both_readers_run_and_the_subscriber_gets_what_was_published(sitl_binary: Path):

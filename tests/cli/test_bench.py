@@ -51,7 +51,6 @@ def test_bench_record_prints_both_formats_their_read_back_and_both_writers_stall
     )  # the same messages, the same chunks
 
 
-@pytest.mark.slow
 @pytest.mark.usefixtures("ros2_env")
 def test_bench_ros2_prints_both_readers_the_hop_and_the_subscriber(
     capsys: pytest.CaptureFixture[str], sitl_binary

@@ -16,7 +16,6 @@ import pytest
 from tests.conftest import run_cli
 
 pytest.importorskip("matplotlib", reason="needs the analysis extra (Matplotlib)")
-pytestmark = pytest.mark.slow
 
 FILES = (
     "report.md", "table1.json", "msp-115200/metadata.yaml", "msp-1000000/metadata.yaml",

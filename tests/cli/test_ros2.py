@@ -59,7 +59,6 @@ def test_a_port_that_cannot_open_is_one_line_and_the_node_says_who_may_command(c
     assert f"{namespace}/fsp/imu" in text
 
 
-@pytest.mark.slow
 @pytest.mark.usefixtures("ros2_env")
 def test_sitl_ros2_publishes_the_virtual_fcs_stream_while_it_verifies(
     capsys, sitl_binary, tmp_path

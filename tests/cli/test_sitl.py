@@ -18,10 +18,9 @@ import pytest
 from rosbags.rosbag2 import Reader
 
 from tests.conftest import run_cli
-from tests.sitl.test_process import sitl_pids, wait_for
+from tests.sitl.test_process import sitl_pids
+from tests.waits import wait_for
 from wftool.sitl.process import free_port_base
-
-pytestmark = pytest.mark.slow
 
 
 def test_serving_records_and_serves_foxglove_until_interrupted(

@@ -17,8 +17,6 @@ import pytest
 from wftool.firmware.project import Project
 from wftool.firmware.unittests import run_unit_tests
 
-pytestmark = pytest.mark.slow
-
 FIRMWARE_VECTORS = (
     "time_reply.bin",
     "time_reply.expected.json",
@@ -37,13 +35,13 @@ WRITERS = "*.WritesConformanceVectors"
 
 
 def test_e2_e3_e4_vectors_are_the_firmware_encoders_output(
-    fresh_clone: Project, sitl_build, vectors_dir: Path, tmp_path: Path
+    unit_test_clone: Project, vectors_dir: Path, tmp_path: Path
 ) -> None:
     if shutil.which("clang") is None:
         pytest.skip("clang not installed (Betaflight's unit tests need it)")
-    [run] = run_unit_tests(fresh_clone, ["test_fsp_unittest"])
+    [run] = run_unit_tests(unit_test_clone, ["test_fsp_unittest"])
     assert run.passed, run.output[-2000:]
-    binary = fresh_clone.tree / "obj" / "test" / "fsp_unittest" / "fsp_unittest"
+    binary = unit_test_clone.tree / "obj" / "test" / "fsp_unittest" / "fsp_unittest"
     subprocess.run(
         [str(binary), f"--gtest_filter={WRITERS}"],
         env={**os.environ, "FSP_VECTORS_DIR": str(tmp_path)},

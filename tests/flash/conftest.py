@@ -20,11 +20,11 @@ from wftool.sitl.process import VirtualFC
 
 @pytest.fixture(scope="session")
 def built_hex(request: pytest.FixtureRequest) -> Path:
-    """The SPEEDYBEEF7V3 hex of this session's build (or WFTOOL_TEST_HEX): a real image."""
+    """The SPEEDYBEEF7V3 hex of this run's build (or WFTOOL_TEST_HEX): a real image."""
     path = os.environ.get("WFTOOL_TEST_HEX")
     if path:
         return Path(path)
-    return request.getfixturevalue("board_build").firmware
+    return request.getfixturevalue("board_firmware")
 
 
 @pytest.fixture

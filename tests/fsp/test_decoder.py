@@ -15,9 +15,10 @@ from wftool.fsp import (
     SensorFrame,
     StateDecoder,
     StatePacket,
+    UplinkFlag,
     UplinkStatus,
 )
-from wftool.fsp.decoder import COMMAND_REPORTS_KEPT
+from wftool.fsp.decoder import COMMAND_REPORTS_KEPT, UPLINK_STATUSES_KEPT
 from wftool.fsp.encoder import encode_command_report, encode_state, encode_uplink_status
 
 PERIOD = 953
@@ -254,3 +255,22 @@ def test_an_exit_is_dated_on_the_stream_clock_like_the_timeout(start_us: int):
     assert status.authority is Authority.PROVING and status.exit is AuthorityExit.TIMEOUT
     decoder.feed(authority_status(sent + 100, 0, AuthorityExit.NONE))
     assert decoder.uplink_status is not None and decoder.uplink_status.exit_at_us is None
+
+
+def test_every_uplink_status_of_a_read_is_kept_until_taken():
+    """A reader that fell behind reads many statuses at once: the one that first reported a
+    change is among them, not only the newest (which reports it as well, later)."""
+    decoder = StateDecoder()
+    decoder.feed(packet_at(0, 1_000_000))
+    live = UplinkStatus(9, 1_000_100, 9, 0, 0, 0, 50, UplinkFlag.LIVE, 0)
+    lost = [
+        UplinkStatus(9, t, 9, 0, 1, 0, 50, UplinkFlag.RX_LOSS, 1, 1_050_000)
+        for t in (1_051_000, 1_151_000, 1_251_000)
+    ]  # the change at 1.051 s, then one every 100 ms
+    decoder.feed(b"".join(encode_uplink_status(s) for s in [live, *lost]))
+    taken = decoder.take_uplink_statuses()
+    assert taken == [live, *lost] and decoder.take_uplink_statuses() == []
+    assert [s.sent_us for s in taken] == [1_000_100, 1_051_000, 1_151_000, 1_251_000]
+    assert decoder.uplink_status == lost[-1]
+    decoder.feed(encode_uplink_status(live) * (UPLINK_STATUSES_KEPT + 3))
+    assert len(decoder.take_uplink_statuses()) == UPLINK_STATUSES_KEPT

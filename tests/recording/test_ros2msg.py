@@ -47,6 +47,13 @@ def store():
     return typestore_of(*ALL_TYPES)
 
 
+@pytest.fixture(scope="module")
+def events_store():
+    """The definition of `StreamEvents` alone (one store for every example: rosbags
+    compiles a type's (de)serialiser the first time a store uses it)."""
+    return typestore_of(ros2msg.STREAM_EVENTS)
+
+
 @pytest.mark.parametrize(
     "name",
     [
@@ -264,10 +271,10 @@ event_batches = st.lists(
 
 @settings(max_examples=200, deadline=None)
 @given(events=event_batches)
-def test_event_batches_round_trip_and_rosbags_agree(events):
+def test_event_batches_round_trip_and_rosbags_agree(events_store, events):
     """A `StreamEvents` batch: our decoder gives the events back; rosbags, from the
     definition alone, reads the same arrays and writes the very same bytes."""
-    store = typestore_of(ros2msg.STREAM_EVENTS)
+    store = events_store
     message = ros2msg.encode_events(events)
     assert ros2msg.decode_events(message).events() == events
     decoded = store.deserialize_cdr(message, "wftool_msgs/msg/StreamEvents")
@@ -291,9 +298,8 @@ def test_a_damaged_event_batch_is_a_clear_error():
 
 @settings(max_examples=200, deadline=None)
 @given(frame=frames)
-def test_any_frame_encodes_as_rosbags_would(frame):
+def test_any_frame_encodes_as_rosbags_would(store, frame):
     """Over every wire value: rosbags decodes our bytes and re-encodes them identically."""
-    store = typestore_of(*ALL_TYPES)
     encoder = FrameEncoder(0)
     stamp = 1_700_000_000_000_000_001
     for name, message in (

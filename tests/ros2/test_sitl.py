@@ -26,7 +26,7 @@ from wftool.sitl.radio import EngagingPilot, SimulatedPilot
 from wftool.sitl.session import PILOT_ARM, PILOT_OVERRIDE, Motion, VirtualFcSession
 from wftool.verify.preflight import FcWatcher
 
-pytestmark = [pytest.mark.slow, pytest.mark.usefixtures("ros2_env")]
+pytestmark = pytest.mark.usefixtures("ros2_env")
 
 SUBSCRIBE_S = 20.0
 PERIOD_NS = 1_000_000  # the virtual FC's frame period: fsp_rate_hz 1100 at an 8 kHz PID loop

@@ -13,13 +13,9 @@ import socket
 import time
 from pathlib import Path
 
-import pytest
-
 from wftool.fsp import StateDecoder
 from wftool.sitl.process import LOOPBACK
 from wftool.sitl.session import VirtualFcSession
-
-pytestmark = pytest.mark.slow
 
 IDLE_TIMEOUT_S = 120.0
 """The SITL's idle timeout of a TCP UART client (serial_tcp.h TCP_IDLE_TIMEOUT_S)."""

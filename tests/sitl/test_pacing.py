@@ -14,8 +14,6 @@ import socket
 import time
 from pathlib import Path
 
-import pytest
-
 from wftool.fc.msp import MspClient
 from wftool.fsp import DEFAULT_BAUDRATE, FspReader, StateDecoder, StatePacket
 from wftool.fsp.encoder import encode_command
@@ -24,8 +22,6 @@ from wftool.fsp.twoway import RoundTrip
 from wftool.sitl.process import LOOPBACK, VirtualBoard
 from wftool.sitl.session import VirtualFcSession
 from wftool.sitl.truth import TrueClock
-
-pytestmark = pytest.mark.slow
 
 PACED = VirtualBoard(uart_pacing=True)
 BITS_PER_BYTE = 10

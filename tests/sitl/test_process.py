@@ -19,6 +19,7 @@ from typing import IO
 
 import pytest
 
+from tests.waits import wait_for
 from wftool.errors import PortInUseError, SitlError
 from wftool.fc.msp import Cmd, MspClient, RebootMode, encode_request
 from wftool.sitl.process import (
@@ -53,15 +54,6 @@ def sitl_pids(port_base: int) -> list[int]:
         if f"--port-base={port_base}".encode() in argv:
             pids.append(int(entry.name))
     return pids
-
-
-def wait_for(condition: object, timeout: float) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if condition():  # type: ignore[operator]
-            return True
-        time.sleep(0.05)
-    return False
 
 
 def test_start_answers_msp_and_stop_leaves_no_process(sitl_binary: Path, tmp_path: Path) -> None:

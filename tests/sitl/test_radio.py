@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ctypes
 import itertools
 import os
 import signal
@@ -23,6 +24,7 @@ from wftool.sitl.radio import (
     SimulatedRadio,
     channel_index,
 )
+from wftool.verify.preflight import RX_LOSS_MS
 
 
 @pytest.fixture
@@ -44,8 +46,10 @@ def test_frames_come_at_the_rate_and_carry_what_was_set(rc_input: socket.socket)
         _, channels = frame(rc_input)
         assert channels[channel_index("roll")] == MID
         radio.set(roll=1234, aux2=2000)
-        time.sleep(2 * radio.frame_period_s)
-        _, channels = frame(rc_input)
+        for _ in range(100):  # up to a second of frames: the transmitter takes the new values
+            _, channels = frame(rc_input)
+            if channels[channel_index("roll")] != MID:
+                break
         assert channels[channel_index("roll")] == 1234 and channels[channel_index("aux2")] == 2000
         assert radio.channels == channels
         times = [frame(rc_input)[0] for _ in range(50)]
@@ -57,13 +61,10 @@ def test_a_transmitter_off_is_silent_until_on_again(rc_input: socket.socket) -> 
     with SimulatedRadio(rc_input.getsockname()[1]) as radio:
         frame(rc_input)
         radio.transmitting(False)
-        time.sleep(0.05)
-        rc_input.settimeout(0.0)
-        while True:  # what was on its way
-            try:
+        rc_input.settimeout(5 * radio.frame_period_s)
+        with pytest.raises(TimeoutError):  # what was on its way, until the transmitter is off
+            for _ in range(200):
                 rc_input.recv(_RC_PACKET.size)
-            except BlockingIOError:
-                break
         rc_input.settimeout(0.3)
         with pytest.raises(TimeoutError):
             rc_input.recv(_RC_PACKET.size)
@@ -74,24 +75,21 @@ def test_a_transmitter_off_is_silent_until_on_again(rc_input: socket.socket) -> 
 
 def test_the_radio_keeps_sending_while_its_holder_stalls(rc_input: socket.socket) -> None:
     """A radio does not stall when the program holding it does: one C call holding the
-    interpreter's lock for ~0.3 s (as a garbage collection late in a long session can) left
+    interpreter's lock for 0.3 s (as a garbage collection late in a long session can) left
     the FC without frames past its 150 ms RX loss limit when the radio was a thread."""
     with SimulatedRadio(rc_input.getsockname()[1]) as radio:
-        frame(rc_input)
+        times = [frame(rc_input)[0]]
         start = time.monotonic()
-        sum(range(30_000_000))  # holds the lock throughout
+        ctypes.PyDLL(None).usleep(300_000)  # a C call that keeps the lock (PyDLL: no release)
         stalled = time.monotonic() - start
-        time.sleep(5 * radio.frame_period_s)
-        rc_input.settimeout(0.0)
-        times = []
-        while True:
-            try:
-                times.append(frame(rc_input)[0])
-            except BlockingIOError:
-                break
-    assert stalled > 0.15, "the stall was too short to tell"
+        while times[-1] < times[0] + stalled + radio.frame_period_s:  # its frames past the stall
+            times.append(frame(rc_input)[0])
+    assert stalled > RX_LOSS_MS / 1e3, "the stall was too short to tell"
+    # Frames all through the stall, none missing long enough for the FC's RX loss: the gaps
+    # are the host's scheduling of a process of its own (up to ~60 ms at load 8 on two
+    # cores), never the holder's stall.
     gaps = [b - a for a, b in itertools.pairwise(times)]
-    assert len(times) >= stalled / radio.frame_period_s * 0.8 and max(gaps) < 0.05, max(gaps)
+    assert max(gaps) < RX_LOSS_MS / 1e3, (max(gaps), stalled)
 
 
 def test_the_transmitter_ends_when_its_holder_is_killed(rc_input: socket.socket) -> None:

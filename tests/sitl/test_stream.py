@@ -13,13 +13,13 @@ from __future__ import annotations
 
 import re
 import threading
-import time
 from collections.abc import Iterator
 from itertools import pairwise
 from pathlib import Path
 
 import pytest
 
+from tests.waits import wait_for
 from wftool.fc.cli_session import CliSession
 from wftool.fc.msp import MspClient
 from wftool.fc.tasks import parse_tasks
@@ -28,11 +28,10 @@ from wftool.fsp.schedule import frame_rate_hz, lockstep_interval
 from wftool.sitl.process import VirtualBoard
 from wftool.sitl.session import Motion, VirtualFcSession
 
-pytestmark = pytest.mark.slow
-
 RATE_TOLERANCE = 0.05
 SETTLE_S = 6.0
-"""`tasks` rates are moving averages over 64 runs: a 50 Hz task needs ~4 s to settle."""
+"""`tasks` rates are moving averages over 64 runs: a 50 Hz task needs ~4 s (FC time) to
+settle."""
 MIN_CHECKED_HZ = 50
 _DECLARED = re.compile(r'DEFINE_TASK\("(\w+)", (?:"(\w+)"|NULL), .*TASK_PERIOD_HZ\((\d+)\)')
 
@@ -54,6 +53,21 @@ class Collector(threading.Thread):
         self.done.set()
         self.join(2)
         self.reader.close()
+
+    def fc_seconds(self) -> float:
+        """The FC time the frames read so far span."""
+        packets = self.packets
+        if not packets or packets[0].frames[0].time_us is None:
+            return 0.0
+        last = packets[-1].frames[-1].time_us or 0
+        return (last - packets[0].frames[0].time_us) / 1e6
+
+    def wait_fc_seconds(self, seconds: float) -> None:
+        """Until the frames span `seconds` of FC time (a loaded host runs the virtual FC
+        slower than its own clock: the FC's time is what the rates are averaged over)."""
+        assert wait_for(lambda: self.fc_seconds() >= seconds, 10 * seconds + 30), (
+            f"{self.fc_seconds():.1f} s of FC time in the stream"
+        )
 
 
 def task_rates(session: CliSession) -> dict[str, int]:
@@ -82,7 +96,7 @@ def test_every_task_runs_at_its_configured_rate(
 ) -> None:
     collector = Collector(moving_fc.fsp_url)  # a client on FSP, as in flight
     collector.start()
-    time.sleep(SETTLE_S)
+    collector.wait_fc_seconds(SETTLE_S)
     with MspClient.open(moving_fc.msp_url) as msp:
         looptime_us = msp.pid_looptime_us()
     session = CliSession.open(moving_fc.msp_url)  # left open: `exit` would reboot the FC
@@ -120,7 +134,7 @@ def test_frames_are_one_lockstep_interval_apart_with_nothing_dropped(
         looptime_us = msp.pid_looptime_us()
     collector = Collector(moving_fc.fsp_url)
     collector.start()
-    time.sleep(4.0)
+    collector.wait_fc_seconds(4.0)
     collector.stop()
 
     stats = collector.reader.decoder.stats
@@ -149,7 +163,7 @@ def test_a_gyro_clock_of_its_own_sets_the_loop_rate_and_micros_truncates(
     with VirtualFcSession(sitl_binary, tmp_path, port_base=None, board=board) as fc:
         collector = Collector(fc.fsp_url)
         collector.start()
-        time.sleep(SETTLE_S)
+        collector.wait_fc_seconds(SETTLE_S)
         collector.stop()
         with MspClient.open(fc.msp_url) as msp:
             period_us = msp.pid_looptime_us(256)  # 317 or 318 µs a read
@@ -178,7 +192,10 @@ def test_msp_is_served_at_the_serial_rate_asked_for(sitl_binary: Path, tmp_path:
         session.set("serial_update_rate_hz", "1000")
         session.save()
         fc.fc.wait_back()
-        time.sleep(2.0)
+        collector = Collector(fc.fsp_url)  # the FC's time since its restart
+        collector.start()
+        collector.wait_fc_seconds(2.0)
+        collector.stop()
         session = CliSession.open(fc.msp_url)
         try:
             serial_hz = task_rates(session)["SERIAL"]

@@ -6,14 +6,10 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-import pytest
-
 from wftool.fsp import CommandSender, FspReader, StateDecoder
 from wftool.fsp.encoder import encode_command
 from wftool.fsp.twoway import RoundTrip
 from wftool.sitl.session import VirtualFcSession
-
-pytestmark = pytest.mark.slow
 
 COMMAND = (1500, 1500, 1500, 1000, 1000, 1000)
 

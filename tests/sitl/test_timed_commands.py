@@ -38,8 +38,6 @@ from wftool.fsp import (
 from wftool.fsp.twoway import RoundTrip, TwoWayClockEstimator
 from wftool.sitl.session import VirtualFcSession
 
-pytestmark = pytest.mark.slow
-
 TIMEOUT_US = 50_000
 """The FC's fsp_cmd_timeout_ms (the default)."""
 LEAD_S = 0.020

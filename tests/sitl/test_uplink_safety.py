@@ -47,8 +47,6 @@ from wftool.verify.preflight import (
     offset_rc,
 )
 
-pytestmark = pytest.mark.slow
-
 
 @dataclass
 class Flight:

@@ -68,7 +68,6 @@ def test_a_report_fails_on_any_line() -> None:
     ]
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("mode", [(), ("--obc-only",)], ids=["safety-pilot", "obc-alone"])
 def test_preflight_passes_on_the_virtual_fc(
     sitl_binary: Path, capsys: pytest.CaptureFixture[str], mode: tuple[str, ...]
@@ -84,7 +83,6 @@ def test_preflight_passes_on_the_virtual_fc(
         assert "OBC stuck (repeats its last packet): pilot's sticks back" in out
 
 
-@pytest.mark.slow
 def test_preflight_fails_naming_the_lines_when_stale_commands_are_held(
     sitl_binary: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

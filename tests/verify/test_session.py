@@ -3,6 +3,7 @@ faults on the line from a stand-in FC (`fake_fc`): outages, damage, loss."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import socket
 import threading
@@ -24,7 +25,8 @@ from wftool.verify.session import VerifySession, criteria_for, replay
 
 @pytest.fixture
 def fc_stream() -> Iterator[tuple[str, list[int]]]:
-    """A TCP server that streams 600 packets, packet 100 missing, then holds the line."""
+    """A TCP server that streams 600 packets, packet 100 missing, then holds the line until
+    the reader hangs up."""
     listener = socket.create_server(("127.0.0.1", 0))
     sent = [i for i in range(600) if i != 100]
     wire = stream(sent, e1=True)
@@ -36,7 +38,9 @@ def fc_stream() -> Iterator[tuple[str, list[int]]]:
             for start in range(0, len(wire), 2000):
                 conn.sendall(wire[start : start + 2000])
                 time.sleep(0.005)
-            time.sleep(2.0)
+            conn.settimeout(30.0)
+            with contextlib.suppress(OSError):
+                conn.recv(1)  # hold the line until the reader hangs up
 
     thread = threading.Thread(target=serve, daemon=True)
     thread.start()

@@ -2,11 +2,13 @@
 
 The series adds its tests beside Betaflight's; `series_tests` finds them from the patched
 commits, so a new test in patches/ is run without being listed anywhere. The tree is
-fetched without src/test and lib/test; running tests checks them out first.
+fetched without src/test and lib/test; running tests checks them out first. They compile
+through ccache where it is installed, as `wftool build` does.
 """
 
 from __future__ import annotations
 
+import os
 import re
 import shutil
 import subprocess
@@ -62,11 +64,14 @@ def run_unit_tests(
     _check_out_tests(project.tree)
     if everything:
         names = all_tests(project)
+    compilers = _compilers()
+    env = {**os.environ, "CCACHE_BASEDIR": str(project.root), "CCACHE_NOHASHDIR": "true"}
     runs = []
     for name in names if names is not None else series_tests(project):
         proc = subprocess.run(
-            ["make", name],
+            ["make", name, *compilers],
             cwd=project.tree,
+            env=env,
             capture_output=True,
             text=True,
             errors="replace",
@@ -74,6 +79,17 @@ def run_unit_tests(
         )
         runs.append(UnitTestRun(name, proc.returncode == 0, proc.stdout + proc.stderr))
     return runs
+
+
+def _compilers() -> list[str]:
+    """make's CC and CXX: those src/test/Makefile picks (clang-18, else clang), through ccache
+    when it is installed, as the firmware builds are (a second run compiles nothing)."""
+    if shutil.which("ccache") is None:
+        return []
+    pair = ("clang-18", "clang++-18")
+    if not all(shutil.which(compiler) for compiler in pair):
+        pair = _TEST_COMPILERS
+    return [f"CC=ccache {pair[0]}", f"CXX=ccache {pair[1]}"]
 
 
 def _check_out_tests(repo: Path) -> None:

@@ -60,6 +60,9 @@ REPLY_PLACE_US = 1_000_000
 """A time reply's FC send time lies this close to the latest state packet's (spec §10)."""
 COMMAND_REPORTS_KEPT = 4096
 """Command reports (E4) a decoder holds until they are taken: the newest ones."""
+UPLINK_STATUSES_KEPT = 4096
+"""Uplink statuses (E3) a decoder holds until they are taken: the newest ones (~7 min of
+statuses at 10 per second)."""
 
 
 JITTER_US = 1000
@@ -176,6 +179,10 @@ class StateDecoder:
         self.stats = StreamStats(rejected=self._deframer.rejected)
         self.uplink_status: UplinkStatus | None = None
         """The FC's newest uplink status (E3, spec §12); None before the first."""
+        self.uplink_statuses: deque[UplinkStatus] = deque(maxlen=UPLINK_STATUSES_KEPT)
+        """Every uplink status decoded, oldest first, not taken yet (`take_uplink_statuses`):
+        one read may bring several (the change a status reports is in the first that has
+        it); the oldest go once `UPLINK_STATUSES_KEPT` wait."""
         self.command_reports: deque[CommandReport] = deque(maxlen=COMMAND_REPORTS_KEPT)
         """The FC's reports on timed commands (E4, spec §13), oldest first, not taken yet
         (`take_command_reports`); the oldest go once `COMMAND_REPORTS_KEPT` wait."""
@@ -207,6 +214,12 @@ class StateDecoder:
         reports = list(self.command_reports)
         self.command_reports.clear()
         return reports
+
+    def take_uplink_statuses(self) -> list[UplinkStatus]:
+        """The uplink statuses (E3) decoded since the last call, oldest first."""
+        statuses = list(self.uplink_statuses)
+        self.uplink_statuses.clear()
+        return statuses
 
     def join(self) -> None:
         """A connection opens mid-stream: the bytes up to the next delimiter end a chunk
@@ -382,6 +395,7 @@ class StateDecoder:
             if status.exit and status.exit_us is not None:
                 status.exit_at_us = sent_us - (status.tx_time_us - status.exit_us) % U32
         self.uplink_status = status
+        self.uplink_statuses.append(status)
 
     def _time_reply(self, reply: TimeReply, arrival_time: float | None) -> None:
         """Place a reply's FC times against the latest state packet's, then pair it."""

@@ -405,11 +405,10 @@ class Obc:
             if port is not None:
                 data = read_within(port, self._fd, 0)
                 if data:
-                    before = self.decoder.stats.uplink_statuses
                     for packet in self.decoder.feed(data, time.monotonic()):
                         self.frames += [(f.time_us or 0, f.rc[:STICKS]) for f in packet.frames]
-                    if self.decoder.stats.uplink_statuses != before and self.status is not None:
-                        self.statuses.append(self.status)
+                    # every status: a read after a stall holds several, the change in the first
+                    self.statuses += self.decoder.take_uplink_statuses()
         time.sleep(timeout)
 
     def _answered(self, trip: RoundTrip) -> None:
