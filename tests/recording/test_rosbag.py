@@ -19,6 +19,7 @@ import textwrap
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 from mcap.reader import make_reader
@@ -29,7 +30,7 @@ from rosbags.typesys import Stores, get_typestore
 from wftool.errors import RecordingError, UsageError
 from wftool.fsp import SensorFrame, StateDecoder, StatePacket, UplinkFlag, UplinkStatus
 from wftool.fsp.encoder import encode_state, encode_uplink_status
-from wftool.recording import rosbag
+from wftool.recording import mcapprocess, rosbag
 from wftool.recording.events import Event, StreamHealth
 from wftool.recording.reader import read_recording
 from wftool.recording.recorder import Recorder
@@ -336,6 +337,31 @@ def test_a_mcap_path_is_the_same_recording_in_one_file(recorded, tmp_path: Path)
     for frame, (_, message) in zip(decoded_frames(reads), topics["/fsp/imu"], strict=True):
         assert_imu_matches(message, frame)
     assert replay_recording(single).summary() == monitor.summary()
+
+
+def event_batches(path: Path) -> list[list[Event]]:
+    """The `/fsp/events` messages of a recording, in written order, as their events."""
+    with open(path, "rb") as handle:
+        messages = make_reader(handle).iter_messages(topics=["/fsp/events"], log_time_order=False)
+        return [decode_events(message.data).events() for _, _, message in messages]
+
+
+def test_the_same_reads_make_the_same_messages_however_slow_the_host(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+):
+    """Where the events are cut into messages follows from the messages alone: a host so
+    slow that every batch of the writer is late by its clock writes what a fast one does."""
+    reads = flight(1500, statuses=True)
+    paths = [tmp_path / "fast.mcap", tmp_path / "slow.mcap"]
+    with Recorder(paths[0], None, {}) as recorder:
+        record(recorder, reads)
+    clock = itertools.count(step=0.25)  # each look at the clock: a quarter second later
+    monkeypatch.setattr(mcapprocess, "time", SimpleNamespace(monotonic=lambda: next(clock)))
+    with Recorder(paths[1], None, {}) as recorder:
+        record(recorder, reads)
+    fast, slow = map(event_batches, paths)
+    assert len(fast) > 2 and [e.data for b in fast for e in b if e.kind == "bytes"] == reads
+    assert slow == fast
 
 
 @pytest.mark.parametrize("record_format", ["ros2", "json"])

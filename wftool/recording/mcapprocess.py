@@ -32,10 +32,12 @@ death can lose."""
 FLUSH_BYTES = 64 * 1024
 """...or as soon as it holds this much."""
 CUT_PERIOD_S = 0.5
-"""With `before_chunk` set, it is called at the first batch after this long, by the clock
-or by the messages' log times (a recording written faster than real time), or after
-`CUT_BYTES`; the writer may cut a chunk only after such a batch: the apart messages come in
-batches this long, not one per batch (fewer, larger messages to read back)."""
+"""With `before_chunk` set, it is called at the first message whose log time is this long
+after the last call's (live, log times follow the clock; a recording written faster than
+real time is cut as one written live), or after `CUT_BYTES`, and the batch goes at once;
+the writer may cut a chunk only after such a batch: the apart messages come in batches this
+long, not one per batch (fewer, larger messages to read back). Decided by the messages
+alone, never by when a batch happened to go: the same messages make the same file."""
 CUT_BYTES = 256 * 1024
 """...or after this much was handed over: a chunk overshoots its size by at most this."""
 PIPE_BYTES = 1024 * 1024
@@ -82,7 +84,6 @@ class McapProcess:
         self._apart = bytearray()
         """The batch's apart messages: handed over ahead of it."""
         self._flushing = False
-        self._cut_due = 0.0
         self._since_cut = 0
         """Bytes handed over since the last cut point."""
         self._log_time = 0
@@ -157,9 +158,17 @@ class McapProcess:
             published,
         )
         batch += data
+        self._since_cut += _MESSAGE.size + len(data)
         if log_time > self._log_time:
             self._log_time = log_time
-        if not self._flushing and (len(batch) >= FLUSH_BYTES or now >= self._batch_due):
+        if self._flushing:
+            return
+        if self.before_chunk is not None and (
+            self._since_cut >= CUT_BYTES
+            or self._log_time - self._cut_log_time >= CUT_PERIOD_S * 1e9
+        ):
+            self._flush(cut=True)
+        elif len(batch) >= FLUSH_BYTES or now >= self._batch_due:
             self._flush()
 
     def finish(self) -> None:
@@ -187,34 +196,25 @@ class McapProcess:
         self._batch += payload
         self._flush()
 
-    def _flush(self) -> None:
+    def _flush(self, cut: bool = False) -> None:
+        """Hand the batch over; `cut`: call `before_chunk` first, and let the writer cut a
+        chunk after it (without `before_chunk`, after every batch)."""
         before_chunk = self.before_chunk
-        cut_point = before_chunk is None
-        now = time.monotonic()
-        due = (
-            now >= self._cut_due
-            or self._since_cut >= CUT_BYTES
-            or self._log_time - self._cut_log_time >= CUT_PERIOD_S * 1e9
-        )
-        if before_chunk is not None and not self._flushing and due:
+        if before_chunk is not None and cut:
             self._flushing = True
             try:
                 before_chunk()
             finally:
                 self._flushing = False
-            self._cut_due = now + CUT_PERIOD_S
             self._cut_log_time = self._log_time
-            cut_point = True
         if self._apart:
             self._batch[:0] = self._apart
             self._apart.clear()
         if not self._batch or self._input.closed:
             return
-        if cut_point:
+        if cut or before_chunk is None:
             self._batch += _RECORD.pack(_CUT_POINT_OP, 0)
             self._since_cut = 0
-        else:
-            self._since_cut += len(self._batch)
         batch, fd = self._batch, self._input.fileno()
         started = time.monotonic()
         written = 0
