@@ -114,11 +114,11 @@ def assert_agree(decoded: StateColumns, packets: list[StatePacket], stats: Strea
 
 
 @contextmanager
-def small_blocks():
-    """Blocks of 3 rows, decoded one by one when the joint decode fails, and 7 bytes
+def small_blocks(scan_bytes: int = 7):
+    """Blocks of 3 rows, decoded one by one when the joint decode fails, and `scan_bytes`
     deframed at a time: every block edge and the whole fallback path get exercised by a
     short stream."""
-    with mock.patch.multiple(columns, BLOCK_ROWS=3, _SMALL=1, _SCAN_BYTES=7):
+    with mock.patch.multiple(columns, BLOCK_ROWS=3, _SMALL=1, _SCAN_BYTES=scan_bytes):
         yield
 
 
@@ -127,11 +127,12 @@ def check(
     sizes: Sequence[int] | None = None,
     times: Sequence[float] | None = None,
     connections: Sequence[int] = (),
+    scan_bytes: int = 7,
 ) -> StreamStats:
     """Columns agree with StateDecoder, with the normal and the smallest blocks."""
     packets, stats = reference(data, sizes, times, connections=connections)
     assert_agree(decode_columns(data, sizes, times, connections=connections), packets, stats)
-    with small_blocks():
+    with small_blocks(scan_bytes):
         decoded = decode_columns(data, sizes, times, connections=connections)
         assert_agree(decoded, packets, stats)
     return stats
@@ -357,7 +358,8 @@ def test_a_long_noisy_flight_is_timed_as_state_decoder_times_it() -> None:
     a repeated packet and an FC reboot: the batch path of the default estimator agrees."""
     trace = simulate(CLOCK_MODELS["reads 1 ms"], 30, 40.0)
     splice_step(trace, len(trace.arrival) // 2, -0.05)
-    wire, sizes, times = b"", [], []
+    packets: list[bytes] = []
+    sizes, times = [], []
     reboot = 3 * len(trace.arrival) // 4
     for index, (fc_us, arrival) in enumerate(zip(trace.fc_time_us, trace.arrival)):
         seq = index
@@ -367,11 +369,14 @@ def test_a_long_noisy_flight_is_timed_as_state_decoder_times_it() -> None:
         frames = (frame(sample_us % 2**32), frame((sample_us + PERIOD) % 2**32))
         packet = encode_state(StatePacket(fc_us % 2**32, frames, seq % 2**24, True))
         if index == 5000:
-            packet += wire[-118 * 100 : -118 * 99]  # an old packet sent again
-        wire += packet
+            packet += packets[-100]  # an old packet sent again
+        packets.append(packet)
         sizes.append(len(packet))
         times.append(arrival)
-    stats = check(wire, sizes, times)
+    # Deframed 1009 bytes at a time (not 7: 2.5 MB in 7-byte steps took 13 s): not a
+    # multiple of the 118-byte packet, so over the flight the scan blocks still end at
+    # every byte of a packet, ~20 times each.
+    stats = check(b"".join(packets), sizes, times, scan_bytes=1009)
     assert (stats.resets, stats.outliers) == (1, 1)
 
 
