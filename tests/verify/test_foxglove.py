@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import base64
 import contextlib
+import fcntl
 import json
 import os
 import shutil
@@ -184,8 +185,9 @@ def test_a_stuck_viewer_never_holds_up_publishing():
 
         # The server is still live for others: a new viewer gets fresh messages. (The stuck
         # viewer's subscriptions already count as sinks, so when the new one's subscription
-        # takes effect cannot be waited for: publish until it receives.)
-        fresh = Viewer(live.url)
+        # takes effect cannot be waited for: publish until it receives. Its queue is
+        # unbounded, so that it reads on and sees the server's close without waiting.)
+        fresh = Viewer(live.url, max_queue=None)
         trickling = threading.Event()
 
         def trickle() -> None:
@@ -284,8 +286,8 @@ def test_an_unfinished_viewer_message_costs_little_and_ends_the_viewer():
 
 
 def test_connections_that_never_handshake_are_dropped_and_bounded():
-    limits = GateLimits()
-    with FoxgloveLive(port=0) as live:
+    limits = GateLimits(handshake_s=1.0)  # (10 s by default)
+    with FoxgloveLive(port=0, limits=limits) as live:
         socks = [
             socket.create_connection(("127.0.0.1", live.port)) for _ in range(limits.viewers + 8)
         ]
@@ -304,13 +306,18 @@ def test_connections_that_never_handshake_are_dropped_and_bounded():
 
 def test_the_servers_log_never_blocks_it(tmp_path):
     """Failed handshakes make the SDK log a line each; with stderr a pipe nobody reads, the
-    writes blocked and the server stopped taking viewers (after ~1,300)."""
+    writes blocked and the server stopped taking viewers (after ~1,300 with a 64 KiB pipe)."""
+    log, log_end = os.pipe()
+    with contextlib.suppress(AttributeError, OSError):  # Linux: a pipe of one page fills sooner
+        fcntl.fcntl(log_end, fcntl.F_SETPIPE_SZ, 4096)
+    capacity = fcntl.fcntl(log_end, fcntl.F_GETPIPE_SZ) if hasattr(fcntl, "F_GETPIPE_SZ") else 65536
     server = subprocess.Popen(
-        [sys.executable, "-c", SERVE_FOREVER], stdout=subprocess.PIPE, stderr=subprocess.PIPE
+        [sys.executable, "-c", SERVE_FOREVER], stdout=subprocess.PIPE, stderr=log_end
     )
+    os.close(log_end)
     try:
         port = int(server.stdout.readline())
-        for _ in range(3000):  # ~50 bytes of log each: twice what a pipe holds
+        for _ in range(2 * capacity // 40):  # 40 bytes of log each at least: twice the pipe
             with socket.create_connection(("127.0.0.1", port), timeout=WAIT_S) as sock:
                 sock.sendall(
                     b"GET / HTTP/1.1\r\nHost: x\r\nUpgrade: websocket\r\n"
@@ -323,7 +330,8 @@ def test_the_servers_log_never_blocks_it(tmp_path):
     finally:
         server.kill()
         server.wait()
-    assert server.stderr.read(200).startswith(b"foxglove: Dropping client 127.0.0.1:")
+    with open(log, "rb") as stderr:
+        assert stderr.read(200).startswith(b"foxglove: Dropping client 127.0.0.1:")
 
 
 SERVE_FOREVER = """
