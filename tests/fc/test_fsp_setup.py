@@ -13,7 +13,6 @@ from wftool.errors import ParameterError
 from wftool.fc.cli_session import CliSession
 from wftool.fc.fsp_setup import (
     FSP_FUNCTION,
-    AuxRange,
     ObcOnly,
     SafetyPilot,
     SerialPortConfig,
@@ -24,6 +23,7 @@ from wftool.fc.fsp_setup import (
     parse_channel,
     parse_range,
 )
+from wftool.fc.modes import AuxRange
 from wftool.fc.msp import FEATURE_RX_MSP, FEATURE_RX_UDP, RECEIVER_FEATURES, MspClient
 from wftool.fc.params import apply_plan, parse_cli_script, plan_from_assignments
 from wftool.sitl.process import VirtualFC

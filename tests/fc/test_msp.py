@@ -12,6 +12,7 @@ import pytest
 from wftool.errors import MspError
 from wftool.fc.msp import (
     FEATURE_RX_MSP,
+    ArmingDisabled,
     Cmd,
     FrameReader,
     MspClient,
@@ -20,6 +21,7 @@ from wftool.fc.msp import (
     crc8_dvb_s2,
     decode_frame,
     encode_request,
+    parse_status_ex,
 )
 from wftool.sitl.process import VirtualFC
 
@@ -171,6 +173,37 @@ def test_sensor_and_state_replies_have_their_shapes(virtual_fc: VirtualFC) -> No
     assert -180 <= attitude.roll_deg <= 180 and 0 <= attitude.yaw_deg <= 360
     assert analog.voltage_v >= 0 and 0 <= analog.rssi <= 1023
     assert len(rc) >= 8 and all(800 <= value <= 2200 for value in rc)
+
+
+def status_ex(boxes: int, arming: int, extra_boxes: bytes = b"") -> bytes:
+    """An MSP_STATUS_EX payload as Betaflight 2025.12's msp.c writes it."""
+    head = struct.pack("<HHHIBHBB", 125, 0, 0x21, boxes & 0xFFFFFFFF, 0, 5, 4, 0)
+    tail = struct.pack("<IBH", arming, 0, 0)
+    return head + bytes([len(extra_boxes)]) + extra_boxes + bytes([29]) + tail
+
+
+def test_status_ex_modes_past_32_and_the_arming_flags() -> None:
+    status = parse_status_ex(status_ex(0x10001, 1 << 2 | 1 << 28, b"\x02"))
+    assert status.boxes == 0x10001 | 0x2 << 32
+    assert status.active(0) and status.active(33) and not status.active(1)
+    assert not status.active(None)  # a mode the FC does not have
+    assert status.arming_disabled == ArmingDisabled.RX_FAILSAFE | ArmingDisabled.ARM_SWITCH
+    with pytest.raises(MspError, match="STATUS_EX reply too short"):
+        parse_status_ex(status_ex(0, 0)[:18])
+
+
+def test_the_configuration_replies_of_a_fresh_fc(virtual_fc: VirtualFC) -> None:
+    with MspClient.open(virtual_fc.url) as msp:
+        bits = msp.mode_bits()
+        status = msp.status_ex()
+        ranges = msp.mode_ranges()
+        failsafe = msp.failsafe_config()
+        rx = msp.rx_config()
+    assert bits[0] == 0  # ARM is always the first mode
+    assert not status.active(bits[0]) and ArmingDisabled.RX_FAILSAFE in status.arming_disabled
+    assert len(ranges) == 20 and not any(r.usable for r in ranges)
+    assert (failsafe.delay_ms, failsafe.procedure_name) == (1500, "DROP")
+    assert (rx.min_us, rx.max_us) == (885, 2115)
 
 
 def test_set_raw_rc_drives_the_msp_receiver(virtual_fc: VirtualFC) -> None:

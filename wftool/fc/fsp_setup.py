@@ -10,6 +10,7 @@ from dataclasses import dataclass, replace
 
 from wftool.errors import CliCommandError, ParameterError, ProtocolError
 from wftool.fc.cli_session import CliSession
+from wftool.fc.modes import AUX_CHANNELS, MODE_ARM, MODE_MSP_OVERRIDE, AuxRange
 from wftool.fc.msp import FEATURE_RX_MSP, RECEIVER_FEATURES
 from wftool.fc.params import Command, FeatureChange, Plan, Planner, set_command
 from wftool.fsp.schedule import DEFAULT_RATE_HZ
@@ -72,17 +73,6 @@ def function_names(mask: int) -> str:
     )
 
 
-AUX_CHANNELS = 14
-"""Betaflight's AUX channels (MAX_AUX_CHANNEL_COUNT: 18 channels, 4 of them sticks)."""
-MODE_ARM = 0
-MODE_MSP_OVERRIDE = 50
-MODE_NAMES = {
-    0: "ARM", 1: "ANGLE", 2: "HORIZON", 3: "ALTHOLD", 5: "HEADFREE", 6: "PASSTHRU",
-    13: "BEEPER", 19: "OSD DISABLE", 26: "BLACKBOX", 27: "FAILSAFE", 28: "AIR MODE",
-    35: "FLIP OVER AFTER CRASH", 36: "PREARM", 39: "VTX PIT MODE", 46: "GPS RESCUE",
-    50: "MSP OVERRIDE", 53: "LAUNCH CONTROL",
-}  # fmt: skip
-"""Permanent mode ids (msp_box.c) of the `aux` command, for messages."""
 STICK_FUNCTIONS = 4
 """rcmap's first four entries: roll, pitch, yaw, throttle."""
 FAILSAFE_PROCEDURES = {"drop": "DROP", "land": "AUTO-LAND", "gps-rescue": "GPS-RESCUE"}
@@ -115,38 +105,6 @@ class ObcOnly:
 
 
 Control = SafetyPilot | ObcOnly
-
-
-@dataclass(frozen=True)
-class AuxRange:
-    """One line of the CLI `aux` command: a mode on an AUX channel within a range."""
-
-    slot: int
-    mode: int
-    """The mode's permanent id (`MODE_NAMES`)."""
-    channel: int
-    """0 = AUX1."""
-    start: int
-    end: int
-    logic: int = 0
-    linked: int = 0
-
-    @classmethod
-    def parse(cls, line: str) -> AuxRange:
-        return cls(*(int(field) for field in line.split()[1:8]))
-
-    @property
-    def usable(self) -> bool:
-        """Betaflight's IS_RANGE_USABLE: an empty range is an unused slot."""
-        return self.start < self.end
-
-    def command(self) -> str:
-        fields = (self.slot, self.mode, self.channel, self.start, self.end, self.logic)
-        return "aux " + " ".join(str(f) for f in (*fields, self.linked))
-
-    def describe(self) -> str:
-        name = MODE_NAMES.get(self.mode, f"mode {self.mode}")
-        return f"aux {self.slot}: {name} on AUX{self.channel + 1} {self.start}-{self.end}"
 
 
 def aux_ranges(session: CliSession) -> list[AuxRange]:

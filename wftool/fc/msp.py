@@ -16,6 +16,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from wftool.errors import MspError
+from wftool.fc.modes import AuxRange, parse_mode_ranges
 from wftool.link.crc import DVB_S2_INIT, crc8
 from wftool.link.transport import Port, open_port, port_errors, read_size
 
@@ -33,14 +34,20 @@ class Cmd(enum.IntEnum):
     FC_VERSION = 3
     BOARD_INFO = 4
     BUILD_INFO = 5
+    MODE_RANGES = 34
     FEATURE_CONFIG = 36
     SET_FEATURE_CONFIG = 37
+    RX_CONFIG = 44
+    RX_MAP = 64
     REBOOT = 68
+    FAILSAFE_CONFIG = 75
     STATUS = 101
     RAW_IMU = 102
     RC = 105
     ATTITUDE = 108
     ANALOG = 110
+    BOXIDS = 119
+    STATUS_EX = 150
     SET_RAW_RC = 200
 
 
@@ -75,6 +82,23 @@ RECEIVER_FEATURES = (
     | FEATURE_RX_SPI
 )
 """Betaflight enables exactly one of these at boot (`validateAndFixConfig`)."""
+
+
+class ArmingDisabled(enum.IntFlag):
+    """Betaflight's arming disable flags (`armingDisableFlags_e`, runtime_config.h), those
+    wftool names."""
+
+    FAILSAFE = 1 << 1
+    RX_FAILSAFE = 1 << 2
+    """The receiver has no signal (the OSD's RXLOSS)."""
+    CLI = 1 << 13
+    MSP = 1 << 16
+    ARM_SWITCH = 1 << 28
+    """The ARM switch was on while arming was disabled: it must go off first."""
+
+
+FAILSAFE_PROCEDURE_NAMES = ("AUTO-LAND", "DROP", "GPS-RESCUE")
+"""`failsafe_procedure` by value (failsafeProcedure_e), as the CLI spells them."""
 
 _JUMBO_SIZE = 255
 
@@ -210,6 +234,9 @@ class _Fields:
     def u8(self) -> int:
         return self.unpack("B")[0]
 
+    def data(self, size: int) -> bytes:
+        return self._take(size)
+
     def text(self, size: int) -> str:
         return self._take(size).decode("ascii", "replace").rstrip("\0")
 
@@ -291,6 +318,48 @@ class FcIdentity:
     api: ApiVersion
     board: BoardInfo
     build: BuildInfo
+
+
+@dataclass(frozen=True)
+class FcStatus:
+    """MSP_STATUS_EX: which modes are on, and what keeps the FC from arming."""
+
+    boxes: int
+    """The active-mode bits, in the order of the FC's MSP_BOXIDS (`mode_bits`)."""
+    arming_disabled: ArmingDisabled
+
+    def active(self, bit: int | None) -> bool:
+        """Whether the mode at `bit` (`mode_bits`; None: the FC has no such mode) is on."""
+        return bit is not None and bool(self.boxes >> bit & 1)
+
+
+@dataclass(frozen=True)
+class FailsafeConfig:
+    """MSP_FAILSAFE_CONFIG (failsafe.h's settings; times in ms)."""
+
+    delay_ms: int
+    """`failsafe_delay`: RX loss to stage 2."""
+    landing_time_s: int
+    throttle: int
+    switch_mode: int
+    throttle_low_delay_ms: int
+    procedure: int
+    """`failsafe_procedure` (`FAILSAFE_PROCEDURE_NAMES`)."""
+
+    @property
+    def procedure_name(self) -> str:
+        names = FAILSAFE_PROCEDURE_NAMES
+        return names[self.procedure] if self.procedure < len(names) else str(self.procedure)
+
+
+@dataclass(frozen=True)
+class RxConfig:
+    """What wftool reads of MSP_RX_CONFIG: the FC's valid pulse range."""
+
+    min_us: int
+    """`rx_min_usec`."""
+    max_us: int
+    """`rx_max_usec`."""
 
 
 PID_PERIOD_SAMPLES = 200
@@ -442,6 +511,28 @@ class MspClient:
         band = max(1.0, 0.05 * median)
         return statistics.fmean(period for period in periods if abs(period - median) <= band)
 
+    def status_ex(self, timeout: float | None = None) -> FcStatus:
+        return parse_status_ex(self.request(Cmd.STATUS_EX, timeout=timeout))
+
+    def mode_bits(self) -> dict[int, int]:
+        """Permanent mode id → its bit in `FcStatus.boxes`, for the modes this FC has
+        (MSP_BOXIDS)."""
+        return {mode: bit for bit, mode in enumerate(self.request(Cmd.BOXIDS))}
+
+    def mode_ranges(self) -> list[AuxRange]:
+        """Every mode range slot, used or not (MSP_MODE_RANGES)."""
+        return parse_mode_ranges(self.request(Cmd.MODE_RANGES))
+
+    def failsafe_config(self) -> FailsafeConfig:
+        fields = _Fields(Cmd.FAILSAFE_CONFIG, self.request(Cmd.FAILSAFE_CONFIG))
+        delay, landing, throttle, switch, low_delay, procedure = fields.unpack("BBHBHB")
+        return FailsafeConfig(delay * 100, landing, throttle, switch, low_delay * 100, procedure)
+
+    def rx_config(self) -> RxConfig:
+        fields = _Fields(Cmd.RX_CONFIG, self.request(Cmd.RX_CONFIG))
+        fields.unpack("BHHHB")  # provider, maxcheck, midrc, mincheck, spektrum_sat_bind
+        return RxConfig(*fields.unpack("HH"))
+
     def features(self) -> int:
         """The configured feature bit mask (takes effect at boot)."""
         return _Fields(Cmd.FEATURE_CONFIG, self.request(Cmd.FEATURE_CONFIG)).unpack("I")[0]
@@ -466,6 +557,20 @@ def parse_attitude(payload: bytes) -> Attitude:
 
 def parse_rc(payload: bytes) -> tuple[int, ...]:
     return _Fields(Cmd.RC, payload).unpack(f"{len(payload) // 2}H")
+
+
+def parse_status_ex(payload: bytes) -> FcStatus:
+    """MSP_STATUS_EX: the first 32 mode bits at 6, the count of further bytes at 15 and
+    those bytes, then the count of arming disable flags and their u32."""
+    fields = _Fields(Cmd.STATUS_EX, payload)
+    fields.unpack("HHH")  # cycle time, I2C errors, sensors
+    (boxes,) = fields.unpack("I")
+    fields.unpack("BHBB")  # PID profile, load, profile count, rate profile
+    extra = fields.u8()
+    boxes |= int.from_bytes(fields.data(extra), "little") << 32
+    fields.u8()  # the flag count
+    (arming,) = fields.unpack("I")
+    return FcStatus(boxes, ArmingDisabled(arming))
 
 
 def parse_analog(payload: bytes) -> Analog:
