@@ -19,9 +19,9 @@ import pytest
 
 from tests.ros2 import peers
 from wftool.fc.msp import MspClient
-from wftool.sitl.radio import SimulatedPilot
+from wftool.preflight.watcher import FcWatcher
+from wftool.sitl.radio import HIGH
 from wftool.sitl.session import PILOT_ARM, PILOT_OVERRIDE, Motion, VirtualFcSession
-from wftool.verify.preflight import FcWatcher
 
 pytestmark = [pytest.mark.slow, pytest.mark.usefixtures("ros2_env")]
 
@@ -128,7 +128,7 @@ def piloted(sitl_binary: Path, tmp_path: Path) -> Iterator[tuple[VirtualFcSessio
         watcher = FcWatcher(msp).start()
         try:
             assert watcher.wait(lambda s: s.can_arm, time.monotonic(), 20.0), "arming disabled"
-            SimulatedPilot(fc.radio, PILOT_OVERRIDE, PILOT_ARM).hold(armed=True, override=True)
+            fc.radio.set({f"aux{PILOT_ARM}": HIGH, f"aux{PILOT_OVERRIDE}": HIGH})
             on = watcher.wait(lambda s: s.armed and s.override, time.monotonic(), 5.0)
             assert on is not None, "the pilot cannot arm with the override on"
             yield fc, watcher
@@ -143,7 +143,7 @@ def test_a_subscriber_sees_the_fc_hand_the_sticks_back_and_lose_its_radio(pilote
     the timeout that hands the sticks back to the pilot (override still on), RX loss, the
     failsafe, the radio back."""
     fc, watcher = piloted
-    pilot = SimulatedPilot(fc.radio, PILOT_OVERRIDE, PILOT_ARM)
+    assert fc.radio is not None
     out = tmp_path / "uplink.jsonl"
     with ros2_node(fc.fsp_url, tmp_path, 120) as namespace:
         topics = {f"{namespace}/fsp/uplink_status": "wftool_msgs/msg/UplinkStatus"}
@@ -153,12 +153,12 @@ def test_a_subscriber_sees_the_fc_hand_the_sticks_back_and_lose_its_radio(pilote
             assert peers.command(f"{namespace}/fsp/command", plan) == "matched"
             t = time.monotonic()  # the commands stopped at least 0.5 s ago: the pilot's sticks
             assert watcher.wait(lambda s: abs(s.rc[0] - 1500) <= 5 and s.armed, t - 1.0, 2.0)
-            pilot.transmitter(False)
+            fc.radio.transmitting(False)
             t = time.monotonic()
             assert watcher.wait(lambda s: s.rx_loss, t, 2.0), "no RX loss"
             assert watcher.wait(lambda s: s.failsafe, t, 5.0), "no failsafe"
             time.sleep(0.3)
-            pilot.transmitter(True)
+            fc.radio.transmitting(True)
             assert watcher.wait(lambda s: not s.rx_loss, time.monotonic(), 5.0), "no radio"
             time.sleep(0.5)
             subscriber.send_signal(signal.SIGTERM)

@@ -26,14 +26,14 @@ from pathlib import Path
 from wftool.fc.cli_session import CliSession
 from wftool.fc.fsp_setup import (
     CMD_TIMEOUT_MS_DEFAULT,
-    MODE_ARM,
-    AuxRange,
+    Control,
     ObcOnly,
     SafetyPilot,
     SerialPortConfig,
     aux_ranges,
     fsp_planner,
 )
+from wftool.fc.modes import MODE_ARM, AuxRange
 from wftool.fc.msp import FEATURE_RX_UDP, MspClient
 from wftool.fc.params import Command, Plan, Planner, apply_plan, set_command
 from wftool.fsp import DEFAULT_BAUDRATE
@@ -184,6 +184,9 @@ class VirtualFcSession:
         cmd_timeout_ms: int = CMD_TIMEOUT_MS_DEFAULT,
         failsafe_procedure: str = "drop",
         arm_switch: int | None = None,
+        control: Control | None = None,
+        configuration: Planner | None = None,
+        fsp_uart: int = FSP_UART,
     ) -> None:
         """`time_reply`: the FC answers each command with a time reply (spec §10);
         `port_base=None`: any free ports (see `VirtualFC`); `serial_update_rate_hz` None:
@@ -191,7 +194,12 @@ class VirtualFcSession:
         it is (115200). `pilot`: a safety pilot's simulated radio is the receiver (`radio`),
         else the OBC flies alone with `failsafe_procedure`. `arm_switch`: ARM on that AUX
         channel (default: the radio's AUX1 with a pilot; none without, where the OBC arms
-        only through an ARM range on AUX3/AUX4)."""
+        only through an ARM range on AUX3/AUX4). `control`: who flies as `configure fsp` is
+        told (default: from `pilot`, the switch AUX2 at 1700-2100). `configuration`: a
+        planner that configures the FC instead of `configure fsp` (a user's backup), with
+        FSP on UART`fsp_uart`."""
+        if control is not None:
+            pilot = isinstance(control, SafetyPilot)
         self.fc = VirtualFC(binary, workdir, port_base=port_base, board=board)
         self.msp_baud = msp_baud
         self.workdir = workdir
@@ -203,6 +211,9 @@ class VirtualFcSession:
         self.cmd_timeout_ms = cmd_timeout_ms
         self.failsafe_procedure = failsafe_procedure
         self.arm_switch = arm_switch if arm_switch is not None or not pilot else PILOT_ARM
+        self.control = control
+        self.configuration = configuration
+        self.fsp_uart = fsp_uart
         self._motion = motion
         self._feeder: MotionFeeder | None = None
         self.radio: SimulatedRadio | None = None
@@ -221,16 +232,20 @@ class VirtualFcSession:
 
     @property
     def fsp_url(self) -> str:
-        return self.fc.uart_url(FSP_UART)
+        return self.fc.uart_url(self.fsp_uart)
 
     def planner(self) -> Planner:
         """`configure fsp` as this virtual FC is flown, plus what a simulator without an
-        airframe needs (`_virtual_airframe`)."""
-        control: SafetyPilot | ObcOnly = ObcOnly(self.failsafe_procedure)
-        if self.pilot:
+        airframe needs (`_virtual_airframe`); or the `configuration` given."""
+        if self.configuration is not None:
+            return self.configuration
+        control: Control = ObcOnly(self.failsafe_procedure)
+        if self.control is not None:
+            control = self.control
+        elif self.pilot:
             control = SafetyPilot(PILOT_OVERRIDE, SWITCH_ON_US)
         planner = fsp_planner(
-            FSP_UART,
+            self.fsp_uart,
             self._baud,
             self.rate_hz,
             self.time_reply,

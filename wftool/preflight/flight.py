@@ -1,0 +1,288 @@
+"""One preflight run's parts — the FC over MSP, the OBC on the FSP port, the pilot, the board's
+settings, the report — and the moves every scenario makes with them: put the OBC in control
+as the board lets it (the pilot engaging it, or the OBC alone), and time what the sticks,
+RXLOSS and arming do, by the FC clock where the FC gives one.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+from wftool.fc.modes import MODE_ARM
+from wftool.fsp.packets import UplinkFlag, UplinkStatus
+from wftool.preflight.obc import FrameSeen, Obc, Sent
+from wftool.preflight.pilot import Pilot
+from wftool.preflight.report import Line, Report
+from wftool.preflight.settings import OBC_AUX, BoardSettings
+from wftool.preflight.watcher import STICKS, FcWatcher, Snapshot
+from wftool.progress import Log, quiet
+
+LIMIT_MS = 100.0
+"""The pilot's sticks back, or RXLOSS, within this long after the OBC's last fresh command."""
+WAIT_S = 5.0
+"""How long preflight waits for what it asked of the FC before it says "never" (timings are
+judged against their limits, not this)."""
+HOLD_S = 0.5
+"""How long the FC must stay safe while a failure goes on."""
+PROOF_WAIT_S = 3.0
+"""How long a live OBC may take to become ready for the pilot (its proof of life, spec §15,
+is 500 ms; the virtual FC on a busy host runs slow)."""
+LINK_UP_S = 10.0
+"""An OBC-alone FC needs `failsafe_recovery_delay` of commands before RXLOSS clears (a wait,
+not a limit)."""
+STEADY_S = 0.3
+"""How long the OBC steers before a scenario makes it fail: the FC in a steady state."""
+TOLERANCE_US = 10
+"""A stick within this of the pilot's value is the pilot's (a real radio's values jitter)."""
+AUTHORITY = ("pilot", "proving", "ready", "engaged", "receiver")
+"""The authority states of an uplink status (spec §15), by value."""
+FC_CLOCK = "FC clock"
+HOST_CLOCK = "host clock: MSP"
+
+
+def near(values: Sequence[int], wanted: Sequence[int], tolerance: int = TOLERANCE_US) -> bool:
+    return all(abs(a - b) <= tolerance for a, b in zip(values, wanted, strict=True))
+
+
+def largest_move(snapshots: Sequence[Snapshot], wanted: Sequence[int]) -> int:
+    """How far the sticks went from `wanted` (µs) in `snapshots`."""
+    return max(
+        (max(abs(a - b) for a, b in zip(s.sticks, wanted, strict=True)) for s in snapshots),
+        default=0,
+    )
+
+
+def away_from(sticks: Sequence[int]) -> tuple[int, int, int, int]:
+    """Stick values the OBC commands: far from `sticks` (300 µs; throttle 150 µs above)."""
+    roll, pitch, yaw, throttle = sticks[:STICKS]
+    away = [v - 300 if v > 1500 else v + 300 for v in (roll, pitch, yaw)]
+    return (away[0], away[1], away[2], min(throttle + 150, 2000))
+
+
+def authority_of(status: UplinkStatus | None) -> int | None:
+    """Who flies, as the uplink status says (spec §15); None from firmware that does not say."""
+    return getattr(status, "authority", None)
+
+
+@dataclass
+class Flight:
+    """The parts of one run, and the report its scenarios add their lines to."""
+
+    watcher: FcWatcher
+    obc: Obc
+    pilot: Pilot
+    settings: BoardSettings
+    report: Report = field(default_factory=Report)
+    limit_ms: float = LIMIT_MS
+    arm: bool = False
+    """Arming allowed (props off): the pilot, or the OBC alone, arms."""
+    log: Log = quiet
+    armed: bool = False
+    """The FC was armed for this run (`arm_once`)."""
+    pilot_rc: tuple[int, ...] = ()
+    """What MSP_RC shows while the pilot flies (read by `start`)."""
+
+    @property
+    def alone(self) -> bool:
+        return self.settings.obc_alone
+
+    @property
+    def authority(self) -> bool:
+        """The firmware reports who flies (spec §15)."""
+        return authority_of(self.obc.status) is not None
+
+    @property
+    def timeout_ms(self) -> float:
+        status = self.obc.status
+        if status is not None:
+            return status.timeout_ms
+        return self.settings.timeout_ms or 150
+
+    def command(self, sticks: Sequence[int] | None = None) -> tuple[int, ...]:
+        """The OBC's command: sticks away from the pilot's (or, alone, level with throttle low:
+        arming needs it), aux3/aux4 where they switch no mode (or, alone and armed through
+        AUX3/AUX4 on firmware before arming requests, where they keep it armed)."""
+        if sticks is None:
+            sticks = (1400, 1600, 1450, 1000) if self.alone else away_from(self.pilot_rc)
+        return (*sticks[:STICKS], *self._aux(self.armed))
+
+    def _aux(self, armed: bool) -> tuple[int, int]:
+        aux = []
+        for channel in OBC_AUX:
+            ranges = [r for r in self.settings.ranges if r.aux == channel]
+            if armed and (arm := [r for r in ranges if r.mode == MODE_ARM]):
+                aux.append(arm[0].on_us)
+                continue
+            free = [v for v in (1000, 2000, 1500) if not any(r.covers(v) for r in ranges)]
+            aux.append(free[0] if free else 1000)
+        if not self.alone and len(self.pilot_rc) >= 8:  # away from the pilot's AUX3/AUX4
+            aux = [2000 if v < 1500 else 1000 for v in self.pilot_rc[6:8]]
+        return aux[0], aux[1]
+
+    # -- the OBC in and out of control --------------------------------------------------------
+
+    def start(self) -> None:
+        """The pilot holds the override switch off and the sticks still; read their values."""
+        self.pilot.hold(override=False)
+        self.pilot_rc = self.watcher.latest().rc
+
+    def silence(self) -> None:
+        """The OBC stops; returns once the FC has no command in effect (it timed out)."""
+        self.obc.behave("stopped")
+        self.obc.twin(None)
+        gone = self.obc.next_status(lambda s: not s.has(UplinkFlag.LIVE), WAIT_S)
+        if gone is None:  # no status (firmware without E3): a timeout's worth, and some
+            time.sleep((self.timeout_ms + 50) / 1000)
+
+    def take_over(self, what: str, command: Sequence[int] | None = None) -> bool:
+        """The OBC in control, flying `command` (default: `command()`): with a safety pilot the
+        pilot turns the override switch off, the OBC sends fresh commands until it is ready
+        (spec §15), and the pilot turns the switch on; with the OBC alone, fresh commands until
+        RXLOSS clears. False, with a failed line naming `what`, if it does not come to that."""
+        command = tuple(command or self.command())
+        self.silence()
+        if not self.alone:
+            self.pilot.hold(override=False)
+        self.obc.behave("fresh", command)
+        if not self.alone:
+            if self.authority and self.wait_authority("ready", PROOF_WAIT_S) is None:
+                self.fail(f"{what}: a live OBC becomes ready for the pilot", "ready")
+                return False
+            self.pilot.hold(override=True)
+        flying = self.watcher.wait(
+            lambda s: near(s.sticks, command[:STICKS]) and not s.rx_loss,
+            time.monotonic(),
+            LINK_UP_S if self.alone else WAIT_S,
+        )
+        if flying is None:
+            latest = self.watcher.latest()
+            self.report.check(
+                f"{what}: fresh commands fly the sticks",
+                False,
+                f"sticks {latest.sticks}" + (", RXLOSS" if latest.rx_loss else ""),
+                f"{command[:STICKS]}",
+            )
+            self.obc.behave("stopped")
+            return False
+        time.sleep(STEADY_S)
+        return True
+
+    def fail(self, name: str, wanted: str) -> Line:
+        """A failed line: what the FC's uplink status says instead of `wanted`."""
+        status = self.obc.status
+        said = "no uplink status" if status is None else describe(status)
+        return self.report.check(name, False, said, wanted)
+
+    def wait_authority(self, name: str, timeout: float) -> UplinkStatus | None:
+        wanted = AUTHORITY.index(name)
+        return self.obc.statuses.wait(
+            lambda s: authority_of(s) == wanted, self.obc.statuses.end - 1, timeout
+        )
+
+    def arm_once(self) -> bool:
+        """Arm for the run (`--arm`, props off): the pilot arms, or the OBC alone asks the FC
+        to. False, with a failed line, if the FC does not arm."""
+        if self.armed:
+            return True
+        ready = self.watcher.wait(lambda s: s.can_arm, time.monotonic(), 15.0)
+        if ready is None:
+            flags = self.watcher.latest().status.arming_disabled
+            self.report.check("the FC can be armed", False, f"arming disabled ({flags!r})", "")
+            return False
+        self.armed = True
+        if self.alone:
+            self.obc.behave("fresh", self.command())  # firmware before arming requests
+        else:
+            self.pilot.hold(armed=True)
+        armed = self.watcher.wait(lambda s: s.armed, time.monotonic() - 0.01, WAIT_S)
+        who = "the OBC" if self.alone else "the pilot"
+        self.report.check(
+            f"{who} arms (--arm)", armed is not None, "armed" if armed else "not armed", "armed"
+        )
+        self.armed = armed is not None
+        return self.armed
+
+    # -- timing what the FC does ---------------------------------------------------------------
+
+    def timed(
+        self,
+        name: str,
+        last: Sent | None,
+        shows: Callable[[Snapshot], bool],
+        *,
+        frame: Callable[[FrameSeen], bool] | None = None,
+        status: Callable[[UplinkStatus], bool] | None = None,
+        limit_ms: float | None = None,
+        by_fc: bool = True,
+    ) -> Snapshot | None:
+        """A line timing what MSP `shows` from the OBC's `last` fresh command on: by the FC
+        clock (from the FC time the FC took it, by its time reply, to the first `frame` or
+        uplink `status` that shows it) where it can (`by_fc`, the FC answers commands), else
+        from the write to the MSP reply (an upper bound). The snapshot that showed it."""
+        limit = self.limit_ms if limit_ms is None else limit_ms
+        since = last.written if last is not None else time.monotonic()
+        seen = self.watcher.wait(lambda s: s.asked >= since and shows(s), since, WAIT_S)
+        ms: float | None = None
+        clock = HOST_CLOCK
+        if seen is not None:
+            ms = 1e3 * (seen.t - since)
+            fc = self.fc_ms(last, frame=frame, status=status) if by_fc else None
+            if fc is not None:
+                ms, clock = fc, FC_CLOCK
+        self.report.timing(f"{name}", ms, limit, clock)
+        return seen
+
+    def fc_ms(
+        self,
+        last: Sent | None,
+        *,
+        frame: Callable[[FrameSeen], bool] | None = None,
+        status: Callable[[UplinkStatus], bool] | None = None,
+    ) -> float | None:
+        """FC milliseconds from the FC taking `last` to the first `frame` or `status` that
+        shows the change; None if the FC did not answer `last` or the stream did not show it."""
+        taken = self.obc.taken_us(last)
+        if taken is None:
+            return None
+        if frame is not None:
+            seen = self.obc.frame_after(taken, frame, WAIT_S)
+            return None if seen is None else (seen.fc_us - taken) / 1000
+        if status is not None:
+            said = self.obc.status_after(taken, status, WAIT_S)
+            return None if said is None or said.sent_us is None else (said.sent_us - taken) / 1000
+        return None
+
+    def holds(
+        self, name: str, since: float, wanted: Sequence[int], seconds: float = HOLD_S
+    ) -> Line:
+        """A line: for `seconds` from host time `since` the sticks stay at `wanted` (the
+        pilot's), no RXLOSS or failsafe, and — armed — the FC stays armed."""
+        time.sleep(max(0.0, since + seconds - time.monotonic()))
+        after = [s for s in self.watcher.since(since) if s.t <= since + seconds]
+        moved = largest_move(after, wanted[:STICKS])
+        problems = []
+        if moved > TOLERANCE_US:
+            problems.append(f"sticks moved {moved} µs")
+        if any(s.rx_loss or s.failsafe for s in after):
+            problems.append("RXLOSS/failsafe")
+        if self.armed and any(not s.armed for s in after):
+            problems.append("disarmed")
+        what = "the pilot flies" + (", armed" if self.armed else "")
+        return self.report.check(
+            f"{name}: {seconds:g} s on, {what}",
+            not problems,
+            "; ".join(problems) or "yes",
+            "yes",
+            value=moved,
+            unit="µs",
+        )
+
+
+def describe(status: UplinkStatus) -> str:
+    """An uplink status in a few words."""
+    flags = [flag.name.lower() for flag in UplinkFlag if status.has(flag) and flag.name]
+    authority = authority_of(status)
+    who = f"authority {AUTHORITY[authority]}, " if authority is not None else ""
+    return f"{who}{'+'.join(flags) or 'no flags'}, accepted {status.accepted}"
