@@ -6,7 +6,16 @@ import struct
 
 from hypothesis import strategies as st
 
-from wftool.fsp import CommandPacket, SensorFrame, StatePacket
+from wftool.fsp import (
+    ArmingAction,
+    ArmingRequest,
+    Authority,
+    AuthorityExit,
+    CommandPacket,
+    SensorFrame,
+    StatePacket,
+    UplinkStatus,
+)
 
 u16 = st.integers(0, 2**16 - 1)
 u24 = st.integers(0, 2**24 - 1)
@@ -44,10 +53,25 @@ state_packets = st.builds(
     mavlink=st.none() | st.binary(min_size=64, max_size=64),
 )
 
+u8 = st.integers(0, 255)
 command_packets = st.builds(
-    CommandPacket, rc=tuples(i16, 6), seq=u24, tx_time_us=u32, at_us=st.none() | u32
+    CommandPacket, rc=tuples(i16, 6), seq=u24, tx_time_us=u32, at_us=st.none() | u32, sender=u24
 )
 """Immediate and timed (E4) commands."""
+arming_requests = st.builds(
+    ArmingRequest, request=u8.map(ArmingAction), seq=u24, tx_time_us=u32, sender=u24
+)
+"""E5 arming requests, undefined requests (which the FC refuses) included."""
+uplink_statuses = st.builds(
+    UplinkStatus, command_seq=u24, tx_time_us=u32, accepted=u32, stale=u32, timeouts=u32,
+    rejected=u32, timeout_ms=u16, flags=u8, failsafe_phase=u8, timed_out_us=u32,
+) | st.builds(
+    UplinkStatus, command_seq=u24, tx_time_us=u32, accepted=u32, stale=u32, timeouts=u32,
+    rejected=u32, timeout_ms=u16, flags=u8, failsafe_phase=u8, timed_out_us=u32,
+    authority=u8.map(Authority), exit=u8.map(AuthorityExit), proof_ms=u16, exit_us=u32,
+    sender=u24, foreign=u32, refused=u32, msp_rc_refused=u32, rc_min_us=u16, rc_max_us=u16,
+)  # fmt: skip
+"""E3 uplink statuses: of older firmware (36 bytes) and with who flies (64 bytes)."""
 
 corruption = st.one_of(
     st.tuples(st.just("flip"), st.integers(0, 10_000), st.integers(1, 255)),

@@ -22,15 +22,22 @@ from hypothesis import strategies as st
 from mcap.reader import make_reader
 
 from tests.conftest import run_cli
-from tests.fsp.strategies import corruption, harm, state_packets
+from tests.fsp.strategies import corruption, harm, state_packets, uplink_statuses
 from tests.fsp.test_clock import MODEL as CLOCK_MODELS
 from tests.fsp.test_clock import splice_step
 from tests.fsp.test_decoder import frame
 from tests.recording.test_reader import record_two_connections
 from wftool.bench.clock import simulate
 from wftool.errors import UsageError
-from wftool.fsp import ClockEstimator, ClockState, StateDecoder, StatePacket, StreamStats
-from wftool.fsp.encoder import encode_state
+from wftool.fsp import (
+    ClockEstimator,
+    ClockState,
+    StateDecoder,
+    StatePacket,
+    StreamStats,
+    UplinkStatus,
+)
+from wftool.fsp.encoder import encode_state, encode_uplink_status
 from wftool.fsp.framing import Rejection
 from wftool.fsp.packets import FRAME_LAYOUT
 from wftool.recording.events import Event
@@ -226,6 +233,18 @@ def test_physical_units_are_the_frames_own(vectors_dir: Path, name: str) -> None
 )
 def test_any_packets_any_reads(wire: bytes, data: st.DataObject) -> None:
     check(wire, *data.draw(reads(wire)))
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.lists(state_packets | uplink_statuses, max_size=30), st.data())
+def test_uplink_statuses_of_both_lengths_are_counted_as_the_decoder_counts_them(
+    packets: list, data: st.DataObject
+) -> None:
+    wire = b"".join(
+        encode_uplink_status(p) if isinstance(p, UplinkStatus) else encode_state(p) for p in packets
+    )
+    stats = check(wire, *data.draw(reads(wire)))
+    assert stats.uplink_statuses == sum(isinstance(p, UplinkStatus) for p in packets)
 
 
 @settings(max_examples=300, deadline=None)

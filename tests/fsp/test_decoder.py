@@ -7,9 +7,18 @@ import tracemalloc
 
 import pytest
 
-from wftool.fsp import CommandOutcome, CommandReport, SensorFrame, StateDecoder, StatePacket
+from wftool.fsp import (
+    Authority,
+    AuthorityExit,
+    CommandOutcome,
+    CommandReport,
+    SensorFrame,
+    StateDecoder,
+    StatePacket,
+    UplinkStatus,
+)
 from wftool.fsp.decoder import COMMAND_REPORTS_KEPT
-from wftool.fsp.encoder import encode_command_report, encode_state
+from wftool.fsp.encoder import encode_command_report, encode_state, encode_uplink_status
 
 PERIOD = 953
 
@@ -215,3 +224,33 @@ def test_command_reports_are_kept_until_taken_and_no_more_than_a_bound():
     kept = decoder.take_command_reports()
     assert len(kept) == COMMAND_REPORTS_KEPT and decoder.stats.command_reports == len(kept) + 11
     assert kept[0].event_time_us == 1_000_600 and kept[0].at_time_us == 1_000_500
+
+
+def authority_status(tx_time_us: int, exit_us: int, exit: AuthorityExit) -> bytes:
+    """Wire bytes of a 64-byte uplink status (spec §12) sent at `tx_time_us`."""
+    return encode_uplink_status(
+        UplinkStatus(
+            9, tx_time_us % 2**32, 9, 1, 1, 0, 50, 0, 0, (exit_us - 1000) % 2**32,
+            Authority.PROVING, exit, 500, exit_us % 2**32, 0x5A17C3, 0, 0, 0, 885, 2115,
+        )
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize("start_us", [1_000_000, 2**32 - 2_500])
+def test_an_exit_is_dated_on_the_stream_clock_like_the_timeout(start_us: int):
+    """`exit_us` unwraps against the status's own send time, placed in the stream's 64-bit
+    FC time: a wrap between the exit and the status changes nothing."""
+    decoder = StateDecoder()
+    decoder.feed(packet_at(0, start_us) + packet_at(1, start_us + 2 * PERIOD))
+    last = decoder.last_packet
+    assert last is not None and last.time_us is not None
+    sent = last.time_us + 40
+    assert (sent > 2**32) == (start_us > 2**31)  # the status after the wrap, the exit before
+    exit_at = sent - 4_000
+    decoder.feed(authority_status(sent, exit_at, AuthorityExit.TIMEOUT))
+    status = decoder.uplink_status
+    assert status is not None and status.sent_us == sent
+    assert (status.exit_at_us, status.timed_out_at_us) == (exit_at, exit_at - 1000)
+    assert status.authority is Authority.PROVING and status.exit is AuthorityExit.TIMEOUT
+    decoder.feed(authority_status(sent + 100, 0, AuthorityExit.NONE))
+    assert decoder.uplink_status is not None and decoder.uplink_status.exit_at_us is None

@@ -5,9 +5,21 @@ from __future__ import annotations
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tests.fsp.strategies import command_packets, corruption, harm, state_packets
-from wftool.fsp import CommandDecoder, StateDecoder
-from wftool.fsp.encoder import encode_command, encode_state
+from tests.fsp.strategies import (
+    arming_requests,
+    command_packets,
+    corruption,
+    harm,
+    state_packets,
+    uplink_statuses,
+)
+from wftool.fsp import CommandDecoder, StateDecoder, UplinkStatus
+from wftool.fsp.encoder import (
+    encode_arming_request,
+    encode_command,
+    encode_state,
+    encode_uplink_status,
+)
 from wftool.fsp.packets import pack_state
 from wftool.link.crc import crc8
 
@@ -18,10 +30,25 @@ def test_state_round_trip(packets):
     assert StateDecoder().feed(wire) == packets
 
 
-@given(st.lists(command_packets, min_size=1, max_size=40))
-def test_command_round_trip(packets):
-    wire = b"".join(encode_command(p) for p in packets)
+@given(st.lists(command_packets | arming_requests, min_size=1, max_size=40))
+def test_uplink_round_trip(packets):
+    encode = {"CommandPacket": encode_command, "ArmingRequest": encode_arming_request}
+    wire = b"".join(encode[type(p).__name__](p) for p in packets)
     assert CommandDecoder().feed(wire) == packets
+
+
+@given(st.lists(state_packets | uplink_statuses, min_size=1, max_size=30))
+def test_uplink_statuses_of_both_lengths_come_between_the_state_packets(packets):
+    decoder = StateDecoder()
+    states = []
+    for packet in packets:
+        if isinstance(packet, UplinkStatus):
+            decoder.feed(encode_uplink_status(packet))
+            assert decoder.uplink_status == packet
+        else:
+            states += decoder.feed(encode_state(packet))
+    assert states == [p for p in packets if not isinstance(p, UplinkStatus)]
+    assert decoder.stats.errors == 0
 
 
 @given(st.lists(state_packets, min_size=1, max_size=30), st.data())

@@ -13,7 +13,21 @@ import pytest
 from tests.fsp.test_decoder import PERIOD, stream
 from tests.fsp.test_timed import locked_decoder, obc_of
 from wftool.errors import ClockError, PortError, UsageError
-from wftool.fsp import CommandDecoder, FspPort, FspReader, StateDecoder, encode_command
+from wftool.fsp import (
+    ArmingAction,
+    ArmingRequest,
+    Authority,
+    AuthorityExit,
+    CommandDecoder,
+    CommandPacket,
+    CommandSender,
+    FspPort,
+    FspReader,
+    StateDecoder,
+    UplinkStatus,
+    encode_command,
+    encode_uplink_status,
+)
 from wftool.fsp.packets import TimeReply
 from wftool.fsp.twoway import RoundTripRejection
 
@@ -156,3 +170,59 @@ def test_a_port_alone_needs_a_decoder_for_a_timed_command():
             port.send_command(NEUTRAL, at=1.0)
         packet = port.send_command(NEUTRAL, now=107.0, at=107.5, decoder=locked_decoder())
         assert packet.at_us is not None
+
+
+def fc_status(rc_min_us: int, rc_max_us: int) -> bytes:
+    """Wire bytes of an uplink status of the FC (spec §12) reporting its pulse range."""
+    return encode_uplink_status(
+        UplinkStatus(
+            0, 2_000_000, 0, 0, 0, 0, 50, 0, 0, 0, Authority.PILOT, AuthorityExit.NONE, 500, 0,
+            0, 0, 0, 0, rc_min_us, rc_max_us,
+        )
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize("kind", [FspPort, FspReader])
+def test_a_port_checks_commands_against_the_pulse_range_its_fc_reports(kind):
+    """Nothing to do for the user: the FC's statuses on the port set the range (loop://
+    reads back what is written: here, what an FC would send)."""
+    received = CommandDecoder()
+    with kind("loop://") as port:
+        port.send_command((1500, 1500, 1500, 2200, 1500, 1500))  # Betaflight's widest: no status
+        port.port.write(stream(range(2), e1=True) + fc_status(1000, 2000) + stream([2], e1=True))
+        while port.uplink_status is None:
+            (port.read if isinstance(port, FspReader) else port.read_bytes)(0.1)
+        assert port.sender.pulse_range == (1000, 2000)
+        with pytest.raises(ValueError, match=r"throttle 2001 µs .* FC's pulse range 1000\.\.2000"):
+            port.send_command((1500, 1500, 1500, 2001, 1500, 1500))
+        port.send_command(NEUTRAL)
+        commands = received.feed(port.port.read(200))
+    assert [(c.seq, c.rc[3]) for c in commands] == [(1, 1000)]  # the refused one never left
+
+
+def test_a_port_arms_and_disarms_as_its_commands_sender():
+    received = CommandDecoder()
+    with FspPort("loop://") as port:
+        port.send_command(NEUTRAL, now=1.0)
+        arm = port.send_arming(ArmingAction.ARM, now=1.01)
+        port.send_arming(ArmingAction.DISARM, now=1.02)
+        packets = received.feed(port.port.read(200))
+    assert packets == [
+        CommandPacket(NEUTRAL, 0, 1_000_000, None, port.sender.sender),
+        ArmingRequest(ArmingAction.ARM, 1, 1_010_000, port.sender.sender),
+        ArmingRequest(ArmingAction.DISARM, 2, 1_020_000, port.sender.sender),
+    ]
+    assert arm == packets[1]
+
+
+def test_a_sender_given_to_ports_keeps_its_identity_and_sequence_across_them():
+    """A program reconnecting is the same sender (spec §11); a new port is a new one."""
+    sender = CommandSender()
+    with FspPort("loop://", sender=sender) as port:
+        first = port.send_command(NEUTRAL)
+    with FspPort("loop://", sender=sender) as port:
+        again = port.send_command(NEUTRAL)
+    with FspPort("loop://") as port:
+        other = port.send_command(NEUTRAL)
+    assert (first.sender, again.sender, again.seq) == (sender.sender, sender.sender, 1)
+    assert other.sender != sender.sender and other.seq == 0

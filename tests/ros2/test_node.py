@@ -125,7 +125,7 @@ def test_every_frame_reaches_a_separate_subscriber(bridge: Ros2Bridge, tmp_path:
 
 def flags_of(message: dict) -> int:
     """The `UplinkFlag` bits of an `UplinkStatus` message's flags."""
-    return sum(flag for flag in UplinkFlag if message[flag.name.lower()])
+    return sum(flag for flag in list(UplinkFlag)[:5] if message[flag.name.lower()])
 
 
 def _assert_imu(messages: list[dict], frames: list[SensorFrame]) -> None:

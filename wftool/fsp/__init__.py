@@ -12,9 +12,10 @@ from wftool.fsp.clock import (
     KalmanClockEstimator,
     RoundTripObserver,
 )
-from wftool.fsp.decoder import CommandDecoder, StateDecoder, StreamStats
+from wftool.fsp.decoder import CommandDecoder, StateDecoder, StreamStats, UplinkStatusWatch
 from wftool.fsp.encoder import (
     CommandSender,
+    encode_arming_request,
     encode_command,
     encode_command_report,
     encode_state,
@@ -24,6 +25,10 @@ from wftool.fsp.encoder import (
 from wftool.fsp.estimators import ESTIMATORS, ONE_WAY_ESTIMATORS, make_estimator
 from wftool.fsp.framing import Rejection
 from wftool.fsp.packets import (
+    ArmingAction,
+    ArmingRequest,
+    Authority,
+    AuthorityExit,
     CommandOutcome,
     CommandPacket,
     CommandReport,
@@ -47,6 +52,10 @@ __all__ = [
     "DEFAULT_BAUDRATE",
     "ESTIMATORS",
     "ONE_WAY_ESTIMATORS",
+    "ArmingAction",
+    "ArmingRequest",
+    "Authority",
+    "AuthorityExit",
     "ClockEstimator",
     "ClockState",
     "CommandDecoder",
@@ -74,6 +83,8 @@ __all__ = [
     "TwoWayState",
     "UplinkFlag",
     "UplinkStatus",
+    "UplinkStatusWatch",
+    "encode_arming_request",
     "encode_command",
     "encode_command_report",
     "encode_state",

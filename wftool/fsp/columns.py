@@ -45,7 +45,7 @@ from wftool.fsp.packets import (
     STATE_LENGTH,
     TRAILER_LAYOUT,
     TUNNEL_LAYOUT,
-    UPLINK_STATUS_LENGTH,
+    UPLINK_STATUS_LENGTHS,
     Layout,
 )
 from wftool.link.crc import crc8, crc8_check_words
@@ -62,7 +62,7 @@ _SCAN_BYTES = 1 << 20
 _SMALL = 16
 """A block of rows this small whose joint decode fails is decoded row by row."""
 _MAX_CHUNK = longest_chunk(STREAM_VERSIONS)
-_BETWEEN = (UPLINK_STATUS_LENGTH, COMMAND_REPORT_LENGTH)
+_BETWEEN = (*UPLINK_STATUS_LENGTHS, COMMAND_REPORT_LENGTH)
 """The packets between the state packets that are counted, not decoded into columns."""
 assert max(STATE_VERSIONS) < 254  # so every COBS encoding of a state packet is 1 byte longer
 
@@ -361,7 +361,7 @@ def _deframe(
                 rejected[Rejection.VERSION] += 1
             elif crc8(payload[:-1]) != payload[-1]:
                 rejected[Rejection.CRC] += 1
-            elif len(payload) == UPLINK_STATUS_LENGTH:
+            elif len(payload) in UPLINK_STATUS_LENGTHS:
                 stats.uplink_statuses += 1
             else:
                 stats.command_reports += 1

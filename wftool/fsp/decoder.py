@@ -28,20 +28,24 @@ from wftool.fsp.framing import (
     IMMEDIATE_COMMAND_VERSIONS,
     STATE_E2_VERSIONS,
     STREAM_VERSIONS,
+    UPLINK_STATUS_VERSIONS,
     Deframer,
     Rejection,
 )
 from wftool.fsp.packets import (
+    ARMING_REQUEST_LENGTH,
     COMMAND_REPORT_LENGTH,
     DROPS_MODULUS,
     SEQ_MODULUS,
     STATE_LENGTH,
     TIME_REPLY_LENGTH,
+    ArmingRequest,
     CommandPacket,
     CommandReport,
     StatePacket,
     TimeReply,
     UplinkStatus,
+    parse_arming_request,
     parse_command,
     parse_command_report,
     parse_state,
@@ -367,12 +371,16 @@ class StateDecoder:
 
     def _uplink_status(self, status: UplinkStatus, arrival_time: float | None) -> None:
         """Keep the newest status, its FC times unwrapped against the latest state packet's
-        when its send time lies within `REPLY_PLACE_US` of it (as a time reply's)."""
+        when its send time lies within `REPLY_PLACE_US` of it (as a time reply's); the
+        timeout and the exit it dates lie before it (within 2^32 µs)."""
         self.stats.uplink_statuses += 1
         status.arrival_time = arrival_time
         sent_us = status.sent_us = self._placed(status.tx_time_us)
-        if sent_us is not None and status.timeouts:  # before the status, within 2^31 µs
-            status.timed_out_at_us = sent_us - (status.tx_time_us - status.timed_out_us) % U32
+        if sent_us is not None:
+            if status.timeouts:
+                status.timed_out_at_us = sent_us - (status.tx_time_us - status.timed_out_us) % U32
+            if status.exit and status.exit_us is not None:
+                status.exit_at_us = sent_us - (status.tx_time_us - status.exit_us) % U32
         self.uplink_status = status
 
     def _time_reply(self, reply: TimeReply, arrival_time: float | None) -> None:
@@ -405,13 +413,42 @@ class StateDecoder:
 
 
 class CommandDecoder:
-    """Decodes the OBC → FC command stream: what the FC does, for tests and simulators.
-    `timed`: take E4 timed commands (spec §13), as the firmware does unless built without
-    them; without, each is a chunk of bad length."""
+    """Decodes the OBC → FC uplink: what the FC does, for tests and simulators. `timed`: take
+    E4 timed commands (spec §13) and E5 arming requests (§14), as the firmware does unless
+    built without them; without, each is a chunk of bad length."""
 
     def __init__(self, *, timed: bool = True) -> None:
         self._deframer = Deframer(COMMAND_VERSIONS if timed else IMMEDIATE_COMMAND_VERSIONS)
         self.rejected = self._deframer.rejected
 
-    def feed(self, data: bytes) -> list[CommandPacket]:
-        return [parse_command(payload) for payload in self._deframer.feed(data)]
+    def feed(self, data: bytes) -> list[CommandPacket | ArmingRequest]:
+        """The packets completed by `data`, in the order sent."""
+        return [
+            parse_arming_request(payload)
+            if len(payload) == ARMING_REQUEST_LENGTH
+            else parse_command(payload)
+            for payload in self._deframer.feed(data)
+        ]
+
+
+class UplinkStatusWatch:
+    """The FC's newest uplink status (E3, spec §12) out of the raw bytes of its stream, and
+    nothing else decoded: what a port that does not decode (`reader.FspPort`) knows of the
+    FC's pulse range. Its FC times are not placed (no state packets here)."""
+
+    def __init__(self) -> None:
+        self._deframer = Deframer(UPLINK_STATUS_VERSIONS)
+        self.status: UplinkStatus | None = None
+        """The newest status; None before the first."""
+
+    def feed(self, data: bytes) -> UplinkStatus | None:
+        """The newest status completed by `data`, if any (it is `status` then)."""
+        payloads = self._deframer.feed(data)
+        if not payloads:
+            return None
+        self.status = parse_uplink_status(payloads[-1])
+        return self.status
+
+    def resync(self) -> None:
+        """The byte stream broke off (a reconnect): forget the partial chunk."""
+        self._deframer.resync()

@@ -13,13 +13,14 @@ from collections.abc import Mapping
 from cobs import cobs
 
 from wftool.fsp.packets import (
+    ARMING_REQUEST_LENGTH,
     COMMAND_LENGTH,
     COMMAND_REPORT_LENGTH,
     STATE_LENGTH,
     STATE_TUNNEL_LENGTH,
     TIME_REPLY_LENGTH,
     TIMED_COMMAND_LENGTH,
-    UPLINK_STATUS_LENGTH,
+    UPLINK_STATUS_LENGTHS,
     VERSION_BASE,
     VERSION_TUNNEL,
 )
@@ -42,9 +43,11 @@ STATE_VERSIONS: Mapping[int, int] = {
     STATE_TUNNEL_LENGTH: VERSION_TUNNEL,
 }
 """Payload length → the version byte a state packet of that length must carry."""
+UPLINK_STATUS_VERSIONS: Mapping[int, int] = dict.fromkeys(UPLINK_STATUS_LENGTHS, VERSION_BASE)
+"""E3 uplink statuses (spec §12): 64 bytes, or 36 of firmware before the authority fields."""
 STREAM_VERSIONS: Mapping[int, int] = {
     **STATE_VERSIONS,
-    UPLINK_STATUS_LENGTH: VERSION_BASE,
+    **UPLINK_STATUS_VERSIONS,
     COMMAND_REPORT_LENGTH: VERSION_BASE,
 }
 """The FC → OBC stream: state packets, E3 uplink statuses (spec §12) and E4 command reports
@@ -54,10 +57,12 @@ STATE_E2_VERSIONS: Mapping[int, int] = {**STREAM_VERSIONS, TIME_REPLY_LENGTH: VE
 COMMAND_VERSIONS: Mapping[int, int] = {
     COMMAND_LENGTH: VERSION_BASE,
     TIMED_COMMAND_LENGTH: VERSION_BASE,
+    ARMING_REQUEST_LENGTH: VERSION_BASE,
 }
-"""The OBC → FC uplink: commands and E4 timed commands (spec §13)."""
+"""The OBC → FC uplink: commands, E4 timed commands (spec §13), E5 arming requests (§14)."""
 IMMEDIATE_COMMAND_VERSIONS: Mapping[int, int] = {COMMAND_LENGTH: VERSION_BASE}
-"""The uplink as an FC without E4 reads it: a timed command is a chunk of bad length."""
+"""The uplink as an FC without E4 and E5 reads it: a timed command or an arming request is a
+chunk of bad length."""
 
 
 def longest_chunk(versions: Mapping[int, int]) -> int:

@@ -1,4 +1,4 @@
-"""FSP v5 packet models and their byte layouts (spec §3–§6, §10, §12, §13), without the COBS
+"""FSP v5 packet models and their byte layouts (spec §3–§6, §10, §12–§15), without the COBS
 framing.
 
 The models hold raw wire values, so decode → encode is exact; properties convert to physical
@@ -25,8 +25,12 @@ STATE_LENGTH = 116
 STATE_TUNNEL_LENGTH = 180
 COMMAND_LENGTH = 24
 TIMED_COMMAND_LENGTH = 28
+ARMING_REQUEST_LENGTH = 16
 TIME_REPLY_LENGTH = 20
-UPLINK_STATUS_LENGTH = 36
+UPLINK_STATUS_LENGTH = 64
+UPLINK_STATUS_V1_LENGTH = 36
+"""An uplink status of firmware before the authority fields (spec §12): no `authority`."""
+UPLINK_STATUS_LENGTHS = (UPLINK_STATUS_V1_LENGTH, UPLINK_STATUS_LENGTH)
 COMMAND_REPORT_LENGTH = 32
 MAVLINK_FIELD_LENGTH = 64
 
@@ -71,25 +75,87 @@ _HEADER = struct.Struct(_HEADER_FORMAT)
 _FRAME = struct.Struct("<" + _FRAME_FORMAT)
 _TRAILER = struct.Struct("<" + _TRAILER_FORMAT)
 _new = object.__new__
-_COMMAND = struct.Struct("<BBHI6h3xB")
-_TIMED_COMMAND = struct.Struct("<BBHI6hI3xB")
-_TIME_REPLY = struct.Struct("<BBHIII3xB")
-_UPLINK_STATUS = struct.Struct("<BBHIIIIIHBBI3xB")
-_COMMAND_REPORT = struct.Struct("<BBHIIIBB6HxB")
+
+SENDER_LAYOUT: Layout = (("sender_low", "B"), ("sender_high", "H"))
+"""A 24-bit sender identity (spec §5, §11): its bits 0–7 and 8–23, as `seq` in the header."""
+CRC_LAYOUT: Layout = (("crc", "B"),)
+COMMAND_LAYOUT: Layout = (*HEADER_LAYOUT, ("rc", "6h"), *SENDER_LAYOUT, *CRC_LAYOUT)
+"""Spec §5: the header (`seq`, the OBC's `tx_time_us`), six RC values, the sender."""
+TIMED_COMMAND_LAYOUT: Layout = (
+    *HEADER_LAYOUT, ("rc", "6h"), ("at_us", "I"), *SENDER_LAYOUT, *CRC_LAYOUT,
+)  # fmt: skip
+"""Spec §13: a command with the FC time to act at, before the sender."""
+ARMING_REQUEST_LAYOUT: Layout = (
+    *HEADER_LAYOUT, ("request", "B"), *SENDER_LAYOUT, ("reserved", "3x"), *CRC_LAYOUT,
+)  # fmt: skip
+"""Spec §14: the header, what is asked (`ArmingAction`), the sender."""
+UPLINK_STATUS_LAYOUT: Layout = (
+    *HEADER_LAYOUT, ("accepted", "I"), ("stale", "I"), ("timeouts", "I"), ("rejected", "I"),
+    ("timeout_ms", "H"), ("flags", "B"), ("failsafe_phase", "B"), ("timed_out_us", "I"),
+)  # fmt: skip
+"""Spec §12 bytes 0–31, every uplink status's: the header's `seq` is `command_seq`."""
+AUTHORITY_LAYOUT: Layout = (
+    ("authority", "B"), ("exit", "B"), ("proof_ms", "H"), ("exit_us", "I"), *SENDER_LAYOUT,
+    ("reserved", "x"), ("foreign", "I"), ("refused", "I"), ("msp_rc_refused", "I"),
+    ("rc_min_us", "H"), ("rc_max_us", "H"), ("reserved2", "3x"),
+)  # fmt: skip
+"""Spec §12 bytes 32–62: who flies (§15), the sender, the refusals, the FC's pulse range."""
+TIME_REPLY_LAYOUT: Layout = (
+    *HEADER_LAYOUT, ("rx_time_us", "I"), ("fc_tx_time_us", "I"), ("reserved", "3x"), *CRC_LAYOUT,
+)  # fmt: skip
+"""Spec §10: the header echoes the command (`command_seq`, `command_tx_time_us`)."""
+COMMAND_REPORT_LAYOUT: Layout = (
+    *HEADER_LAYOUT, ("at_us", "I"), ("event_us", "I"), ("outcome", "B"), ("queued", "B"),
+    ("counts", "6H"), ("reserved", "x"), *CRC_LAYOUT,
+)  # fmt: skip
+"""Spec §13: the header echoes the timed command (`command_seq`, `command_tx_time_us`)."""
+
+
+def _struct(*layouts: Layout) -> struct.Struct:
+    return struct.Struct("<" + "".join(_format(layout) for layout in layouts))
+
+
+_COMMAND = _struct(COMMAND_LAYOUT)
+_TIMED_COMMAND = _struct(TIMED_COMMAND_LAYOUT)
+_ARMING_REQUEST = _struct(ARMING_REQUEST_LAYOUT)
+_TIME_REPLY = _struct(TIME_REPLY_LAYOUT)
+_UPLINK_STATUS_V1 = _struct(UPLINK_STATUS_LAYOUT, (("reserved", "3x"),), CRC_LAYOUT)
+_UPLINK_STATUS = _struct(UPLINK_STATUS_LAYOUT, AUTHORITY_LAYOUT, CRC_LAYOUT)
+_COMMAND_REPORT = _struct(COMMAND_REPORT_LAYOUT)
 assert _STATE_BASE.size == STATE_LENGTH
 assert _STATE_TUNNEL.size == STATE_TUNNEL_LENGTH
 assert _COMMAND.size == COMMAND_LENGTH
 assert _TIMED_COMMAND.size == TIMED_COMMAND_LENGTH
+assert _ARMING_REQUEST.size == ARMING_REQUEST_LENGTH
 assert _TIME_REPLY.size == TIME_REPLY_LENGTH
+assert _UPLINK_STATUS_V1.size == UPLINK_STATUS_V1_LENGTH
 assert _UPLINK_STATUS.size == UPLINK_STATUS_LENGTH
 assert _COMMAND_REPORT.size == COMMAND_REPORT_LENGTH
 
 Q15 = 32768.0
 RC_CHANNELS = ("roll", "pitch", "yaw", "throttle", "aux3", "aux4")
 RC_PULSE_US = (750, 2250)
-"""The RC values a command may carry: Betaflight's PWM_PULSE_MIN/PWM_PULSE_MAX (rx/rx.h),
-the widest any receiver setup can take as a valid pulse (`rx_min_usec`/`rx_max_usec` are
-configured within them, cli/settings.c). Nothing outside leaves the OBC."""
+"""The widest RC values a command may carry: Betaflight's PWM_PULSE_MIN/PWM_PULSE_MAX
+(rx/rx.h), within which `rx_min_usec`/`rx_max_usec` are configured (cli/settings.c). The FC
+refuses a command with any value outside its own range (spec §5), which its uplink status
+reports (`UplinkStatus.pulse_range`); before one has come, nothing outside these leaves the
+OBC."""
+SENDER_MODULUS = 1 << 24
+"""A sender identity is 24 bits, and not 0 (spec §11)."""
+
+
+class _WireEnum(enum.IntEnum):
+    """A byte of the wire as a typed value: a value this version does not know (newer
+    firmware) decodes as a member of its own, `UNKNOWN_<n>`, instead of failing."""
+
+    @classmethod
+    def _missing_(cls, value: object) -> _WireEnum | None:
+        if not isinstance(value, int) or isinstance(value, bool) or not 0 <= value <= 0xFF:
+            return None
+        member = int.__new__(cls, value)
+        member._name_ = f"UNKNOWN_{value}"
+        member._value_ = value
+        return cls._value2member_map_.setdefault(value, member)  # type: ignore[return-value]
 
 
 class SensorFrame:
@@ -269,12 +335,39 @@ class CommandPacket:
     `at_us` a timed command (E4, spec §13), which the FC applies at that FC time."""
 
     rc: RcValues
-    """roll, pitch, yaw, throttle, aux3, aux4 (µs-style, 1000–2000)."""
+    """roll, pitch, yaw, throttle, aux3, aux4 (µs-style, within the FC's pulse range)."""
     seq: int = 0
+    """24 bits, one more per packet of the sender (commands and arming requests, §11)."""
     tx_time_us: int = 0
+    """The OBC clock (u32 µs) when sent."""
     at_us: int | None = None
     """FC `micros()` (u32) to act at: a timed command (28 bytes); None acts when the FC
     decodes it (24 bytes)."""
+    sender: int = 0
+    """The sender identity (24 bits; the FC refuses 0, spec §11)."""
+
+
+class ArmingAction(_WireEnum):
+    """What an arming request asks (E5, spec §14)."""
+
+    ARM = 1
+    """Set the ARM switch the FC holds (AUX1) on: the FC arms by Betaflight's own rules."""
+    DISARM = 2
+    """Set it off."""
+
+
+@dataclass(slots=True)
+class ArmingRequest:
+    """OBC → FC arming request (E5, spec §14): with the OBC alone, the one way it arms or
+    disarms. Taken only from the latched sender with a command in effect."""
+
+    request: ArmingAction
+    seq: int = 0
+    """The sender's sequence, shared with its commands (§11)."""
+    tx_time_us: int = 0
+    """The OBC clock (u32 µs) when sent."""
+    sender: int = 0
+    """The sender identity (24 bits, not 0)."""
 
 
 @dataclass(slots=True)
@@ -316,6 +409,51 @@ class UplinkFlag(enum.IntFlag):
     RX_LOSS = 1 << 3
     """The FC's receiver has lost its signal (RXLOSS)."""
     ARMED = 1 << 4
+    ARM_SWITCH = 1 << 5
+    """The FC holds its ARM switch on for the OBC (an arming request, spec §14)."""
+
+
+class Authority(_WireEnum):
+    """Who flies (spec §15): an uplink status's `authority`."""
+
+    PILOT = 0
+    """The pilot's sticks (or, with the OBC alone and no link, no one: the FC's failsafe)."""
+    PROVING = 1
+    """A link, proving itself for `proof_ms`: the OBC's commands are ignored."""
+    READY = 2
+    """Proven: the pilot may engage the OBC (override switch off → on)."""
+    ENGAGED = 3
+    """The pilot engaged the OBC: its commands steer the overridden sticks."""
+    RECEIVER = 4
+    """The OBC alone, a command in effect: its commands are the FC's RC input."""
+
+    @property
+    def steers(self) -> bool:
+        """The OBC's commands steer the aircraft (`ENGAGED`, `RECEIVER`)."""
+        return self in (Authority.ENGAGED, Authority.RECEIVER)
+
+
+class AuthorityExit(_WireEnum):
+    """Why the OBC last lost its authority or link, or was refused it (spec §15)."""
+
+    NONE = 0
+    """None yet."""
+    TIMEOUT = 1
+    """No fresh command for `fsp_cmd_timeout_ms`."""
+    SWITCH_OFF = 2
+    """The pilot turned the override switch off."""
+    REFUSED = 3
+    """The latched sender sent a packet refused whole (§5, §14)."""
+    FOREIGN = 4
+    """A packet of another sender came."""
+    CLOCK_STEP = 5
+    """The sender's `tx_time_us` stepped back."""
+    RX_LOSS = 6
+    """The pilot's receiver lost its signal."""
+    DISARMED = 7
+    """The FC disarmed."""
+    NOT_READY = 8
+    """The pilot turned the switch on before the OBC was ready: off and on again once it is."""
 
 
 FAILSAFE_PHASES = (
@@ -327,23 +465,27 @@ FAILSAFE_PHASES = (
 
 @dataclass(slots=True)
 class UplinkStatus:
-    """FC → OBC uplink status (spec §12, E3): what the FC made of the commands so far.
+    """FC → OBC uplink status (spec §12, E3): what the FC made of the commands so far, and
+    who flies (§15).
 
-    Equality is the wire content; the decoder adds the arrival time.
+    Firmware before the authority fields sends 36 bytes: their fields here (`authority` to
+    `rc_max_us`) are then None, the firmware does not report them. Equality is the wire
+    content; the decoder adds the unwrapped FC times and the arrival time.
     """
 
     command_seq: int
-    """`seq` of the newest fresh command (24 bits; 0 before the first)."""
+    """`seq` of the newest fresh packet (24 bits; 0 before the first)."""
     tx_time_us: int
     """FC `micros()` (u32) when the status was written."""
     accepted: int
-    """Fresh commands (u32, wraps)."""
+    """Fresh packets (u32, wraps)."""
     stale: int
-    """Valid commands that were not fresh: repeats, old ones, the first of a new sequence."""
+    """Packets of a sender that were not fresh: repeats, old ones, jumps, the candidate
+    that starts a link."""
     timeouts: int
     """Times the command in effect timed out."""
     rejected: int
-    """Chunks that failed COBS, length, version or CRC."""
+    """Chunks that failed COBS, length, version or CRC, and valid packets refused whole."""
     timeout_ms: int
     """The FC's command timeout, `fsp_cmd_timeout_ms`."""
     flags: int
@@ -352,10 +494,33 @@ class UplinkStatus:
     """Betaflight's failsafe phase (`FAILSAFE_PHASES`)."""
     timed_out_us: int = 0
     """FC `micros()` (u32) when a command in effect last timed out; 0 before the first."""
+    authority: Authority | None = None
+    """Who flies (§15); None: the firmware does not report it (a 36-byte status)."""
+    exit: AuthorityExit | None = None
+    """Why the OBC last lost its authority or link, or was refused it."""
+    proof_ms: int | None = None
+    """The proof of life the pilot's engagement needs (ms)."""
+    exit_us: int | None = None
+    """FC `micros()` (u32) of that `exit`; 0 before the first."""
+    sender: int | None = None
+    """The latched sender while a command is in effect, else the last one latched (24 bits;
+    0 before the first)."""
+    foreign: int | None = None
+    """Packets of another sender while one was latched (u32, wraps)."""
+    refused: int | None = None
+    """Valid packets refused whole for what they carry (§5, §13, §14)."""
+    msp_rc_refused: int | None = None
+    """`MSP_SET_RAW_RC` requests refused: the uplink owns the MSP receiver (§5)."""
+    rc_min_us: int | None = None
+    """The FC's pulse range, `rx_min_usec` …"""
+    rc_max_us: int | None = None
+    """… `rx_max_usec`: a command value outside it is refused."""
     sent_us: int | None = field(default=None, compare=False)
     """`tx_time_us` unwrapped into the state stream's 64-bit FC time (set by the decoder)."""
     timed_out_at_us: int | None = field(default=None, compare=False)
     """`timed_out_us` unwrapped likewise, when there was a timeout (set by the decoder)."""
+    exit_at_us: int | None = field(default=None, compare=False)
+    """`exit_us` unwrapped likewise, when there was an exit (set by the decoder)."""
     arrival_time: float | None = field(default=None, compare=False)
     """OBC clock (s) when the bytes carrying the status were read."""
 
@@ -365,6 +530,25 @@ class UplinkStatus:
 
     def has(self, flag: UplinkFlag) -> bool:
         return bool(self.flags & flag)
+
+    @property
+    def reports_authority(self) -> bool:
+        """The status carries the authority fields (firmware with spec §15: 64 bytes)."""
+        return self.authority is not None
+
+    @property
+    def steering(self) -> bool | None:
+        """The OBC's commands steer the aircraft (`authority` `engaged` or `receiver`);
+        None when the firmware does not say."""
+        return None if self.authority is None else self.authority.steers
+
+    @property
+    def pulse_range(self) -> tuple[int, int] | None:
+        """The FC's pulse range (`rx_min_usec`, `rx_max_usec`): a command with a value
+        outside it is refused whole (spec §5); None when the firmware does not report it."""
+        if self.rc_min_us is None or self.rc_max_us is None:
+            return None
+        return (self.rc_min_us, self.rc_max_us)
 
     @property
     def failsafe_phase_name(self) -> str:
@@ -497,9 +681,34 @@ def parse_command(payload: bytes) -> CommandPacket:
     """A validated 24-byte command payload (or 28-byte timed command, E4) as a packet."""
     if len(payload) == TIMED_COMMAND_LENGTH:
         v = _TIMED_COMMAND.unpack(payload)
-        return CommandPacket(v[4:10], v[1] | v[2] << 8, v[3], v[10])
+        return CommandPacket(v[4:10], v[1] | v[2] << 8, v[3], v[10], v[11] | v[12] << 8)
     v = _COMMAND.unpack(payload)
-    return CommandPacket(v[4:10], v[1] | v[2] << 8, v[3])
+    return CommandPacket(v[4:10], v[1] | v[2] << 8, v[3], None, v[10] | v[11] << 8)
+
+
+def parse_arming_request(payload: bytes) -> ArmingRequest:
+    """A validated 16-byte arming request payload (E5) as a packet (what the FC decodes;
+    for tests: the FC also refuses non-zero reserved bytes, which this does not keep)."""
+    _, seq_low, seq_high, tx_time_us, request, sender_low, sender_high, _ = _ARMING_REQUEST.unpack(
+        payload
+    )
+    return ArmingRequest(
+        ArmingAction(request), seq_low | seq_high << 8, tx_time_us, sender_low | sender_high << 8
+    )
+
+
+def pack_arming_request(packet: ArmingRequest) -> bytes:
+    """The unframed payload of `packet`, CRC included."""
+    seq = packet.seq % SEQ_MODULUS
+    sender = packet.sender % SENDER_MODULUS
+    try:
+        body = _ARMING_REQUEST.pack(
+            VERSION, seq & 0xFF, seq >> 8, packet.tx_time_us, packet.request, sender & 0xFF,
+            sender >> 8, 0,
+        )  # fmt: skip
+    except struct.error as exc:
+        raise ValueError(f"arming request field out of range: {exc}") from None
+    return body[:-1] + bytes([crc8(body[:-1])])
 
 
 def parse_command_report(payload: bytes) -> CommandReport:
@@ -548,21 +757,54 @@ def pack_time_reply(reply: TimeReply) -> bytes:
     return body[:-1] + bytes([crc8(body[:-1])])
 
 
+_AUTHORITY_FIELDS = (
+    "authority", "exit", "proof_ms", "exit_us", "sender", "foreign", "refused",
+    "msp_rc_refused", "rc_min_us", "rc_max_us",
+)  # fmt: skip
+
+
 def parse_uplink_status(payload: bytes) -> UplinkStatus:
-    """A validated 32-byte uplink status payload as a packet."""
-    _, seq_low, seq_high, *values, _ = _UPLINK_STATUS.unpack(payload)
-    return UplinkStatus(seq_low | seq_high << 8, *values)
+    """A validated uplink status payload as a packet: 64 bytes, or 36 of firmware before
+    the authority fields (which are then None)."""
+    if len(payload) == UPLINK_STATUS_V1_LENGTH:
+        _, seq_low, seq_high, *values, _ = _UPLINK_STATUS_V1.unpack(payload)
+        return UplinkStatus(seq_low | seq_high << 8, *values)
+    (
+        _, seq_low, seq_high, tx_time_us, accepted, stale, timeouts, rejected, timeout_ms, flags,
+        failsafe_phase, timed_out_us, authority, exit, proof_ms, exit_us, sender_low,
+        sender_high, foreign, refused, msp_rc_refused, rc_min_us, rc_max_us, _,
+    ) = _UPLINK_STATUS.unpack(payload)  # fmt: skip
+    return UplinkStatus(
+        seq_low | seq_high << 8, tx_time_us, accepted, stale, timeouts, rejected, timeout_ms,
+        flags, failsafe_phase, timed_out_us, Authority(authority), AuthorityExit(exit),
+        proof_ms, exit_us, sender_low | sender_high << 8, foreign, refused, msp_rc_refused,
+        rc_min_us, rc_max_us,
+    )  # fmt: skip
 
 
 def pack_uplink_status(status: UplinkStatus) -> bytes:
-    """The unframed payload of `status`, CRC included (what the FC sends; for tests)."""
+    """The unframed payload of `status`, CRC included (what the FC sends; for tests): 64
+    bytes, or 36 when it carries no authority fields (all None)."""
     seq = status.command_seq % SEQ_MODULUS
+    common = (
+        VERSION, seq & 0xFF, seq >> 8, status.tx_time_us, status.accepted, status.stale,
+        status.timeouts, status.rejected, status.timeout_ms, status.flags,
+        status.failsafe_phase, status.timed_out_us,
+    )  # fmt: skip
+    given = [name for name in _AUTHORITY_FIELDS if getattr(status, name) is not None]
     try:
-        body = _UPLINK_STATUS.pack(
-            VERSION, seq & 0xFF, seq >> 8, status.tx_time_us, status.accepted, status.stale,
-            status.timeouts, status.rejected, status.timeout_ms, status.flags,
-            status.failsafe_phase, status.timed_out_us, 0,
-        )  # fmt: skip
+        if not given:
+            body = _UPLINK_STATUS_V1.pack(*common, 0)
+        elif len(given) < len(_AUTHORITY_FIELDS):
+            missing = sorted(set(_AUTHORITY_FIELDS) - set(given))
+            raise ValueError(f"an uplink status with authority fields has them all: no {missing}")
+        else:
+            sender = status.sender % SENDER_MODULUS  # type: ignore[operator]
+            body = _UPLINK_STATUS.pack(
+                *common, status.authority, status.exit, status.proof_ms, status.exit_us,
+                sender & 0xFF, sender >> 8, status.foreign, status.refused,
+                status.msp_rc_refused, status.rc_min_us, status.rc_max_us, 0,
+            )  # fmt: skip
     except struct.error as exc:
         raise ValueError(f"uplink status field out of range: {exc}") from None
     return body[:-1] + bytes([crc8(body[:-1])])
@@ -573,13 +815,13 @@ def pack_command(packet: CommandPacket) -> bytes:
     seq = packet.seq % SEQ_MODULUS
     if len(packet.rc) != len(RC_CHANNELS):
         raise ValueError(f"a command carries {len(RC_CHANNELS)} RC values: {RC_CHANNELS}")
+    sender = packet.sender % SENDER_MODULUS
+    header = (VERSION, seq & 0xFF, seq >> 8, packet.tx_time_us, *packet.rc)
     try:
         if packet.at_us is None:
-            body = _COMMAND.pack(VERSION, seq & 0xFF, seq >> 8, packet.tx_time_us, *packet.rc, 0)
+            body = _COMMAND.pack(*header, sender & 0xFF, sender >> 8, 0)
         else:
-            body = _TIMED_COMMAND.pack(
-                VERSION, seq & 0xFF, seq >> 8, packet.tx_time_us, *packet.rc, packet.at_us, 0
-            )
+            body = _TIMED_COMMAND.pack(*header, packet.at_us, sender & 0xFF, sender >> 8, 0)
     except struct.error as exc:
         raise ValueError(f"command packet field out of range: {exc}") from None
     return body[:-1] + bytes([crc8(body[:-1])])

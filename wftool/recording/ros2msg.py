@@ -196,6 +196,13 @@ def _cdr(*fields: str) -> struct.Struct:
     return struct.Struct("".join(layout))
 
 
+_STATUS_FLAGS = (
+    UplinkFlag.LIVE, UplinkFlag.OVERRIDE, UplinkFlag.OBC_RECEIVER, UplinkFlag.RX_LOSS,
+    UplinkFlag.ARMED,
+)  # fmt: skip
+"""The flags `UplinkStatus` carries as its bools, in its order."""
+
+
 @dataclass(frozen=True)
 class _Layouts:
     """Each message's struct for one `frame_id`: its length moves what follows the header."""
@@ -224,7 +231,7 @@ def _layouts(frame_id: str) -> _Layouts:
         rpm=_cdr(*header, "4H"),
         attitude=_cdr(*header, "3d"),
         health=_cdr(*header, "2I", "3?", "6Q", "2I"),
-        uplink_status=_cdr(*header, "5I", "H", f"{len(UplinkFlag)}?", "B", "2I", "i", "I"),
+        uplink_status=_cdr(*header, "5I", "H", f"{len(_STATUS_FLAGS)}?", "B", "2I", "i", "I"),
         msp_rc_head=_cdr(*header, "I"),
     )
 
@@ -325,7 +332,7 @@ class FrameEncoder:
         return layouts.uplink_status.pack(
             CDR_LE, sec, nsec, len(layouts.frame_id), layouts.frame_id,
             status.command_seq, status.accepted, status.stale, status.rejected, status.timeouts,
-            status.timeout_ms, *(status.has(flag) for flag in UplinkFlag), status.failsafe_phase,
+            status.timeout_ms, *(status.has(flag) for flag in _STATUS_FLAGS), status.failsafe_phase,
             status.tx_time_us, status.timed_out_us, *timed_out,
         )  # fmt: skip
 
