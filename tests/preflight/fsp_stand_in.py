@@ -27,7 +27,10 @@ class FspStandIn:
     """Serves one connection at a time until stopped; `received` holds every byte, `commands`
     every command decoded, `connections` counts the clients."""
 
-    def __init__(self) -> None:
+    def __init__(self, *, answer_status: bool = False) -> None:
+        """`answer_status`: every command is answered with an uplink status too (E3 of
+        firmware before the authority: 36 bytes)."""
+        self.answer_status = answer_status
         self.received = bytearray()
         self.commands: list[CommandPacket] = []
         self.connections = 0
@@ -102,6 +105,10 @@ class FspStandIn:
                     self.commands.append(command)
                     t = self.now_us() % 2**32
                     out += encode_time_reply(TimeReply(command.seq, command.tx_time_us, t, t))
+                    if self.answer_status:
+                        out += encode_uplink_status(
+                            UplinkStatus(command.seq, t, 0, len(self.commands), 0, 0, 50, 0, 0)
+                        )
                 rc = self.commands[-1].rc if self.commands else (0,) * 6
                 t = self.now_us()
                 packet = StatePacket(

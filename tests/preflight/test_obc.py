@@ -161,3 +161,22 @@ def test_the_guard_stops_every_write(fc: FspStandIn) -> None:
         count = len(fc.received)
         time.sleep(0.1)
         assert len(fc.received) == count
+
+
+def test_a_stall_of_its_own_thread_is_recorded(fc: FspStandIn) -> None:
+    stalled = [False]
+
+    def guard() -> None:  # called before each write: once, the thread sleeps
+        if not stalled[0] and len(fc.commands) >= 3:
+            stalled[0] = True
+            time.sleep(0.06)
+
+    with Obc(fc.url, guard=guard) as obc:
+        obc.behave("fresh", COMMAND)
+        stall = obc.stalls.wait(lambda gap: True, 0, 5.0)
+        assert stall is not None and stall >= 0.06
+        obc.behave("stopped")
+        time.sleep(0.1)
+        obc.behave("fresh", COMMAND)  # a pause it meant is no stall
+        until(lambda: len(fc.commands) >= 15)
+        assert obc.stalls.end == 1

@@ -11,7 +11,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 from wftool.fc.modes import MODE_ARM
-from wftool.fsp.packets import UplinkFlag, UplinkStatus
+from wftool.fsp.packets import ArmingAction, Authority, UplinkFlag, UplinkStatus
 from wftool.preflight.obc import FrameSeen, Obc, Sent
 from wftool.preflight.pilot import Pilot
 from wftool.preflight.report import Line, Report
@@ -36,8 +36,6 @@ STEADY_S = 0.3
 """How long the OBC steers before a scenario makes it fail: the FC in a steady state."""
 TOLERANCE_US = 10
 """A stick within this of the pilot's value is the pilot's (a real radio's values jitter)."""
-AUTHORITY = ("pilot", "proving", "ready", "engaged", "receiver")
-"""The authority states of an uplink status (spec §15), by value."""
 FC_CLOCK = "FC clock"
 HOST_CLOCK = "host clock: MSP"
 
@@ -61,11 +59,6 @@ def away_from(sticks: Sequence[int]) -> tuple[int, int, int, int]:
     return (away[0], away[1], away[2], min(throttle + 150, 2000))
 
 
-def authority_of(status: UplinkStatus | None) -> int | None:
-    """Who flies, as the uplink status says (spec §15); None from firmware that does not say."""
-    return getattr(status, "authority", None)
-
-
 @dataclass
 class Flight:
     """The parts of one run, and the report its scenarios add their lines to."""
@@ -83,6 +76,7 @@ class Flight:
     """The FC was armed for this run (`arm_once`)."""
     pilot_rc: tuple[int, ...] = ()
     """What MSP_RC shows while the pilot flies (read by `start`)."""
+    arming_failed: bool = False
 
     @property
     def alone(self) -> bool:
@@ -91,7 +85,8 @@ class Flight:
     @property
     def authority(self) -> bool:
         """The firmware reports who flies (spec §15)."""
-        return authority_of(self.obc.status) is not None
+        status = self.obc.status
+        return status is not None and status.reports_authority
 
     @property
     def timeout_ms(self) -> float:
@@ -125,7 +120,8 @@ class Flight:
 
     def start(self) -> None:
         """The pilot holds the override switch off and the sticks still; read their values."""
-        self.pilot.hold(override=False)
+        if not self.alone:
+            self.switch(False)
         self.pilot_rc = self.watcher.latest().rc
 
     def silence(self) -> None:
@@ -144,13 +140,12 @@ class Flight:
         command = tuple(command or self.command())
         self.silence()
         if not self.alone:
-            self.pilot.hold(override=False)
+            self.switch(False)
+        statuses = self.obc.statuses.end
         self.obc.behave("fresh", command)
-        if not self.alone:
-            if self.authority and self.wait_authority("ready", PROOF_WAIT_S) is None:
-                self.fail(f"{what}: a live OBC becomes ready for the pilot", "ready")
-                return False
-            self.pilot.hold(override=True)
+        if not self.alone and not self.engage(what, statuses):
+            self.obc.behave("stopped")
+            return False
         flying = self.watcher.wait(
             lambda s: near(s.sticks, command[:STICKS]) and not s.rx_loss,
             time.monotonic(),
@@ -169,40 +164,94 @@ class Flight:
         time.sleep(STEADY_S)
         return True
 
+    def switch(self, on: bool) -> bool:
+        """The pilot turns the override switch on or off; True once the FC shows it (the MSP
+        OVERRIDE mode, asked for after the move)."""
+        self.pilot.hold(override=on)
+        return self.watcher.settled(lambda s: s.override == on, WAIT_S) is not None
+
+    def engage(self, what: str, since: int) -> bool:
+        """The pilot engages a live OBC: once it is ready (spec §15: a status from index
+        `since` on says so; at once on firmware that does not say), the switch off, then on.
+        False, with a failed line naming `what`, if the OBC does not become ready or the FC
+        never shows the switch."""
+        if self.authority and self.wait_authority(Authority.READY, PROOF_WAIT_S, since) is None:
+            self.fail(f"{what}: a live OBC becomes ready for the pilot", "ready")
+            return False
+        if not (self.switch(False) and self.switch(True)):
+            latest = self.watcher.latest()
+            self.report.check(
+                f"{what}: the pilot's override switch reaches the FC",
+                False,
+                f"MSP OVERRIDE {'on' if latest.override else 'off'}",
+                "off, then on",
+            )
+            return False
+        return True
+
     def fail(self, name: str, wanted: str) -> Line:
         """A failed line: what the FC's uplink status says instead of `wanted`."""
         status = self.obc.status
         said = "no uplink status" if status is None else describe(status)
         return self.report.check(name, False, said, wanted)
 
-    def wait_authority(self, name: str, timeout: float) -> UplinkStatus | None:
-        wanted = AUTHORITY.index(name)
-        return self.obc.statuses.wait(
-            lambda s: authority_of(s) == wanted, self.obc.statuses.end - 1, timeout
-        )
+    def wait_authority(
+        self, wanted: Authority, timeout: float, since: int | None = None
+    ) -> UplinkStatus | None:
+        """An uplink status from index `since` on (default: the newest) saying `wanted`."""
+        start = self.obc.statuses.end - 1 if since is None else since
+        return self.obc.statuses.wait(lambda s: s.authority is wanted, start, timeout)
 
-    def arm_once(self) -> bool:
-        """Arm for the run (`--arm`, props off): the pilot arms, or the OBC alone asks the FC
-        to. False, with a failed line, if the FC does not arm."""
+    def arm_once(self, what: str = "") -> bool:
+        """Arm for the run (`--arm`, props off): the pilot arms, or the OBC alone — in control
+        (`take_over`) — asks the FC to (an arming request, spec §14; firmware before it arms
+        through an ARM range on AUX3/AUX4). False, with a failed line, if the FC does not
+        arm; once it did not, `what` is not checked (saying so) and no arming is tried."""
         if self.armed:
             return True
+        if self.arming_failed:
+            self.report.not_checked(what, "the FC could not be armed (above)")
+            return False
         ready = self.watcher.wait(lambda s: s.can_arm, time.monotonic(), 15.0)
         if ready is None:
             flags = self.watcher.latest().status.arming_disabled
             self.report.check("the FC can be armed", False, f"arming disabled ({flags!r})", "")
+            self.arming_failed = True
             return False
         self.armed = True
-        if self.alone:
-            self.obc.behave("fresh", self.command())  # firmware before arming requests
-        else:
+        if not self.alone:
             self.pilot.hold(armed=True)
+        elif self.authority:
+            status = self.obc.status
+            if status is not None and status.has(UplinkFlag.ARM_SWITCH):  # on since a disarm
+                self.obc.request_arming(ArmingAction.DISARM)
+                self.obc.next_status(lambda s: not s.has(UplinkFlag.ARM_SWITCH), WAIT_S)
+            self.obc.request_arming(ArmingAction.ARM)
+        else:
+            self.obc.behave("fresh", self.command())
         armed = self.watcher.wait(lambda s: s.armed, time.monotonic() - 0.01, WAIT_S)
-        who = "the OBC" if self.alone else "the pilot"
+        who = "the OBC (an arming request)" if self.alone else "the pilot"
         self.report.check(
             f"{who} arms (--arm)", armed is not None, "armed" if armed else "not armed", "armed"
         )
         self.armed = armed is not None
+        self.arming_failed = not self.armed
         return self.armed
+
+    def disarm(self) -> None:
+        """Disarm what `arm_once` armed: the pilot's switch, or the OBC's disarm request (its
+        command in effect)."""
+        if not self.watcher.latest().armed:
+            self.armed = False
+            return
+        if not self.alone:
+            self.pilot.hold(armed=False)
+        elif self.authority:
+            self.obc.behave("fresh", self.command())
+            self.obc.next_status(lambda s: s.has(UplinkFlag.LIVE), WAIT_S)
+            self.obc.request_arming(ArmingAction.DISARM)
+        self.watcher.wait(lambda s: not s.armed, time.monotonic(), WAIT_S)
+        self.armed = False
 
     # -- timing what the FC does ---------------------------------------------------------------
 
@@ -283,6 +332,7 @@ class Flight:
 def describe(status: UplinkStatus) -> str:
     """An uplink status in a few words."""
     flags = [flag.name.lower() for flag in UplinkFlag if status.has(flag) and flag.name]
-    authority = authority_of(status)
-    who = f"authority {AUTHORITY[authority]}, " if authority is not None else ""
+    who = ""
+    if status.authority is not None and status.exit is not None:
+        who = f"authority {status.authority.name.lower()} (exit {status.exit.name.lower()}), "
     return f"{who}{'+'.join(flags) or 'no flags'}, accepted {status.accepted}"

@@ -20,8 +20,19 @@ from typing import Any, TypeVar
 
 from wftool.errors import PortError, WftoolError
 from wftool.fsp.decoder import StateDecoder
-from wftool.fsp.encoder import CommandSender, checked_rc, encode_command
-from wftool.fsp.packets import CommandPacket, CommandReport, UplinkStatus
+from wftool.fsp.encoder import (
+    CommandSender,
+    checked_rc,
+    encode_arming_request,
+    encode_command,
+)
+from wftool.fsp.packets import (
+    ArmingAction,
+    ArmingRequest,
+    CommandPacket,
+    CommandReport,
+    UplinkStatus,
+)
 from wftool.fsp.reader import DEFAULT_BAUDRATE
 from wftool.fsp.twoway import RoundTrip
 from wftool.link.transport import Port, open_port, port_errors, read_within, selectable_fd
@@ -30,6 +41,9 @@ from wftool.preflight.record import Record
 R = TypeVar("R")
 COMMAND_RATE_HZ = 100.0
 """How often the OBC commands: several commands per timeout (spec §11)."""
+STALL_S = 0.025
+"""A stall of the OBC's own thread: half the default command timeout without a fresh command
+while it meant to send them (`Obc.stall_s`; the FC's timeout halved once it is known)."""
 REPLY_WAIT_S = 0.02
 """How long a killed OBC waits for the FC's answer to its last command before its port
 closes (the FC answers within a task period or two when `fsp_time_reply` is ON)."""
@@ -100,6 +114,12 @@ class Obc:
         self.reports: Record[CommandReport] = Record(4096)
         self.last_fresh: Sent | None = None
         """The last fresh command written."""
+        self.stall_s = STALL_S
+        """A gap between two fresh commands longer than this is a stall of this program."""
+        self.stalls: Record[float] = Record(4096)
+        """The stalls, each the gap (s) between two fresh commands in a row: this program (the
+        host) was late, and what the FC did meanwhile is no evidence about the FC."""
+        self._steady = False
         self._fresh: deque[Sent] = deque(maxlen=50)
         self._port: Port | None = None
         self._fd: int | None = None
@@ -220,7 +240,7 @@ class Obc:
         `at_us` a timed one (E4); `unchecked`: `rc` as given, even values the FC must refuse
         (the sender itself refuses them: `ValueError`, nothing sent)."""
         if not unchecked:
-            checked_rc(rc)
+            checked_rc(rc, self.sender.fc_pulse_range)
 
         def once() -> Sent:
             stamp = self.clock()
@@ -230,6 +250,16 @@ class Obc:
             else:
                 packet = self.sender.next(rc, stamp, at_us=at_us)
             return self._send(packet, stamp)
+
+        return self._do(once)
+
+    def request_arming(self, action: ArmingAction) -> ArmingRequest:
+        """An arming request (E5, spec §14) now, numbered with the commands."""
+
+        def once() -> ArmingRequest:
+            packet = self.sender.arming_request(action, self.clock())
+            self._write(encode_arming_request(packet))
+            return packet
 
         return self._do(once)
 
@@ -265,7 +295,12 @@ class Obc:
     # -- the thread's side -------------------------------------------------------------------
 
     def _new_sender(self) -> CommandSender:
-        return CommandSender(self.clock, round_trips=self.decoder.round_trips)
+        """A new program's sender: a new identity (spec §11), the FC's pulse range known."""
+        sender = CommandSender(self.clock, round_trips=self.decoder.round_trips)
+        status = self.decoder.uplink_status
+        if status is not None:
+            sender.observe(status)
+        return sender
 
     def _do(self, action: Callable[[], R]) -> R:
         future: concurrent.futures.Future[R] = concurrent.futures.Future()
@@ -322,7 +357,11 @@ class Obc:
         if mode == "fresh":
             stamp = self.clock()
             self._fresh.append(self._send(self.sender.next(self._rc, stamp), stamp))
-            self.last_fresh = self._fresh[-1]
+            last, self.last_fresh = self.last_fresh, self._fresh[-1]
+            if self._steady and last is not None:
+                gap = self.last_fresh.written - last.written
+                if gap > self.stall_s:
+                    self.stalls.add(gap)
         elif mode == "stuck" and self._fresh:
             self._write(self._fresh[-1].wire)
         elif mode == "replay" and len(self._fresh) > 1:
@@ -334,6 +373,7 @@ class Obc:
         if self._twin is not None:
             twin, rc = self._twin
             self._write(encode_command(twin.next(rc, self.clock())))
+        self._steady = mode == "fresh"
 
     def _send(self, packet: CommandPacket, stamp: float) -> Sent:
         wire = encode_command(packet)
@@ -369,6 +409,7 @@ class Obc:
                 self._statuses_seen = decoder.stats.uplink_statuses
                 status = decoder.uplink_status
                 if status is not None:
+                    self.sender.observe(status)  # the FC's pulse range
                     self.statuses.add(status)
         for report in decoder.take_command_reports():
             self.reports.add(report)

@@ -9,12 +9,12 @@ import contextlib
 import threading
 from collections.abc import Callable, Iterator, Sequence
 
-from wftool.errors import UsageError
+from wftool.errors import UsageError, WftoolError
 from wftool.fc.board import Board
 from wftool.fc.modes import MODE_ARM
 from wftool.fc.msp import MspClient
 from wftool.fsp.reader import DEFAULT_BAUDRATE
-from wftool.preflight.flight import LIMIT_MS, Flight, authority_of
+from wftool.preflight.flight import LIMIT_MS, Flight
 from wftool.preflight.obc import README_COMMAND, Obc
 from wftool.preflight.pilot import NoPilot, Pilot
 from wftool.preflight.report import Report
@@ -24,6 +24,8 @@ from wftool.preflight.watcher import FcWatcher, Snapshot
 from wftool.progress import Log, quiet
 
 FIRST_STATUS_S = 1.0
+TRIES = 3
+"""A scenario during which wftool's own OBC stalled is played again, up to this often."""
 """How long the FC may take to answer a first packet with an uplink status (E3)."""
 
 
@@ -160,7 +162,10 @@ class Preflight:
                         flight.arm_once()
                     yield flight
                 finally:
-                    obc.behave("stopped")
+                    with contextlib.suppress(WftoolError):  # the error that ended it goes on
+                        if flight.armed:
+                            flight.disarm()
+                        obc.behave("stopped")
                     pilot.hold(override=False)
         guard.check()
 
@@ -172,18 +177,36 @@ class Preflight:
                 scenario.title, f"needs --arm (props off): {scenario.needs_arm}"
             )
             return
+        report = flight.report
         for trial in range(self.trials):
             count = f" ({trial + 1} of {self.trials})" if self.trials > 1 else ""
-            self.log(f"scenario: {scenario.title}{count}")
-            scenario.run(flight)
-            self._guard.check()
+            stalls: list[float] = []
+            for _ in range(TRIES):
+                self.log(f"scenario: {scenario.title}{count}")
+                lines, start = len(report.lines), flight.obc.stalls.end
+                scenario.run(flight)
+                self._guard.check()
+                if not (stall := flight.obc.stalls.since(start)):
+                    break
+                del report.lines[lines:]  # this program was late: no evidence of the FC's
+                stalls += stall
+                self.log(f"{scenario.title}: wftool's OBC stalled {max(stall) * 1e3:.0f} ms")
+            else:
+                report.not_checked(
+                    scenario.title,
+                    f"wftool's own OBC stalled (up to {max(stalls) * 1e3:.0f} ms between fresh "
+                    f"commands) in each of {TRIES} tries: a loaded host",
+                )
 
     def _first_status(self, flight: Flight) -> None:
         """A lone packet (the FC takes no command from one: spec §11) brings the FC's first
         uplink status: what the firmware reports of itself."""
         report, settings = self.report, flight.settings
+        start = flight.obc.statuses.end
         flight.obc.send_once(README_COMMAND)
-        status = flight.obc.next_status(lambda s: True, FIRST_STATUS_S)
+        status = flight.obc.statuses.wait(lambda s: True, start, FIRST_STATUS_S)
+        if status is not None:
+            flight.obc.stall_s = status.timeout_ms / 2000
         if status is None:
             report.check(
                 "the FC reports on the uplink (E3 uplink status)",
@@ -194,8 +217,8 @@ class Preflight:
             return
         report.check(
             "the firmware reports who flies (E3 authority, spec §15)",
-            authority_of(status) is not None,
-            "yes" if authority_of(status) is not None else "no: firmware before the authority",
+            status.reports_authority,
+            "yes" if status.reports_authority else "no: a 36-byte status, firmware before it",
             "yes",
         )
         report.check(
@@ -204,3 +227,12 @@ class Preflight:
             f"{status.timeout_ms} ms",
             f"{settings.timeout_ms} ms (the setting)",
         )
+        if status.pulse_range is not None:
+            rx = settings.rx
+            low, high = status.pulse_range
+            report.check(
+                "the pulse range as the FC applies it (E3)",
+                (low, high) == (rx.min_us, rx.max_us),
+                f"{low}-{high} µs",
+                f"{rx.min_us}-{rx.max_us} µs (rx_min_usec, rx_max_usec)",
+            )

@@ -16,7 +16,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from wftool.fsp.clock import U32
-from wftool.fsp.packets import CommandOutcome, UplinkFlag
+from wftool.fsp.packets import Authority, CommandOutcome, UplinkFlag, UplinkStatus
 from wftool.preflight.flight import (
     FC_CLOCK,
     HOLD_S,
@@ -113,8 +113,8 @@ def switch_early(flight: Flight) -> None:
     """The switch turned on while the OBC is silent, then the OBC comes: it proves itself, but
     engages nothing (spec §15: the switch must be turned on while it is ready)."""
     flight.silence()
-    flight.pilot.hold(override=False)
-    flight.pilot.hold(override=True)
+    flight.switch(False)
+    flight.switch(True)
     start = time.monotonic()
     flight.obc.behave("fresh", flight.command())
     flight.holds(
@@ -124,7 +124,7 @@ def switch_early(flight: Flight) -> None:
         STAYS_S,
     )
     flight.obc.behave("stopped")
-    flight.pilot.hold(override=False)
+    flight.switch(False)
 
 
 def resume(flight: Flight) -> None:
@@ -151,9 +151,10 @@ def reengage(flight: Flight) -> None:
     title = "the pilot engages the OBC"
     command = flight.command()
     flight.silence()
-    flight.pilot.hold(override=False)
+    flight.switch(False)
+    statuses = flight.obc.statuses.end
     flight.obc.behave("fresh", command)
-    if flight.authority and flight.wait_authority("ready", PROOF_WAIT_S) is None:
+    if flight.authority and flight.wait_authority(Authority.READY, PROOF_WAIT_S, statuses) is None:
         flight.fail(f"{title}: a live OBC becomes ready", "ready")
         return
     statuses = flight.obc.statuses.end
@@ -184,6 +185,7 @@ def restart_piloted(flight: Flight) -> None:
         return
     pilot = flight.pilot_rc[:STICKS]
     restarted = flight.command((*tuple(v - 100 for v in flight.command()[:3]), 1050))
+    statuses = flight.obc.statuses.end
     last = flight.obc.restart(restarted)
     back = flight.timed(
         f"{title}: the pilot's sticks back",
@@ -194,9 +196,7 @@ def restart_piloted(flight: Flight) -> None:
     if back is None:
         return
     line = flight.holds(f"{title}: it stays with the pilot", back.t, pilot, STAYS_S)
-    if line.passed:
-        flight.pilot.hold(override=False)
-        flight.pilot.hold(override=True)
+    if line.passed and flight.engage(title, statuses):
         steers = flight.watcher.wait(
             lambda s: near(s.sticks, restarted[:STICKS]), time.monotonic(), WAIT_S
         )
@@ -337,6 +337,9 @@ def clock_step(flight: Flight) -> None:
         return
     command = flight.command()
     stepped = (command[0] + 50, *command[1:])
+    statuses = flight.obc.statuses.end
+    latest = flight.obc.status
+    exited = latest.exit_at_us or 0 if latest is not None else 0
     last = flight.obc.step_clock(STEP_BACK_S, stepped)
     taken = flight.obc.taken_us(last)
     again = None
@@ -352,10 +355,21 @@ def clock_step(flight: Flight) -> None:
             lambda s: near(s.sticks, stepped[:STICKS]),
             frame=lambda f: near(f.sticks, stepped[:STICKS]),
         )
-        if steers is not None:
-            lost = [s for s in flight.watcher.since(last.written if last else 0) if s.rx_loss]
+        if steers is not None and last is not None:
+            lost = [s for s in flight.watcher.since(last.written) if s.rx_loss]
+            exits = {
+                s.exit.name.lower()
+                for s in flight.obc.statuses.since(statuses)
+                if s.exit is not None and s.exit_at_us is not None and s.exit_at_us > exited
+            }
             flight.report.check(
-                f"{title}: no RXLOSS", not lost, f"{len(lost)} MSP replies RXLOSS", "none"
+                f"{title}: no RXLOSS",
+                not lost,
+                f"{len(lost)} MSP replies RXLOSS, from {1e3 * (lost[0].t - last.written):.0f} to "
+                f"{1e3 * (lost[-1].t - last.written):.0f} ms; exits {sorted(exits)}"
+                if lost
+                else "none",
+                "none",
             )
     else:
         pilot = flight.pilot_rc[:STICKS]
@@ -387,7 +401,7 @@ def out_of_range(flight: Flight) -> None:
     if not flight.take_over(title):
         return
     status = flight.obc.status
-    high = getattr(status, "rc_max_us", None) or flight.settings.rx.max_us
+    high = (status.rc_max_us if status is not None else None) or flight.settings.rx.max_us
     command = flight.command()
     bad = (*command[:3], high + 100, *command[4:])
     frames = flight.obc.frames.end
@@ -474,7 +488,7 @@ def late(flight: Flight) -> None:
 def restart_armed(flight: Flight) -> None:
     """Armed, the OBC program restarts sending the README's command: the FC stays armed."""
     title = "OBC restarts with the README's command"
-    if not flight.take_over(title) or not flight.arm_once():
+    if not flight.take_over(title) or not flight.arm_once(title):
         return
     start = time.monotonic()
     flight.obc.restart(README_COMMAND)
@@ -484,7 +498,7 @@ def restart_armed(flight: Flight) -> None:
 def default_command(flight: Flight) -> None:
     """Armed, the OBC sends the README's example command: nothing disarms, no mode switches."""
     title = "the README's command"
-    if not flight.take_over(title) or not flight.arm_once():
+    if not flight.take_over(title) or not flight.arm_once(title):
         return
     start = time.monotonic()
     flight.obc.behave("fresh", README_COMMAND)
@@ -518,7 +532,7 @@ def stage2(flight: Flight) -> None:
     """Armed, the OBC gets stuck: RXLOSS, then Betaflight's failsafe stage 2 at
     `failsafe_delay`."""
     title = FAILURES["stuck"]
-    if not flight.take_over(title) or not flight.arm_once():
+    if not flight.take_over(title) or not flight.arm_once(f"{title}: failsafe stage 2"):
         return
     time.sleep(0.3)
     last = flight.obc.behave("stuck")
@@ -535,7 +549,7 @@ def stage2(flight: Flight) -> None:
         if fc is not None:
             ms, clock = fc, FC_CLOCK
     flight.report.check(
-        f"{title}: failsafe stage 2 (failsafe_delay {delay} ms; {clock})",
+        f"{title}: failsafe stage 2 (failsafe_delay {delay} ms)",
         ms is not None and delay <= ms <= delay + flight.limit_ms,
         "never" if ms is None else f"{ms:.1f} ms",
         f"{delay}-{delay + flight.limit_ms:g} ms",
@@ -547,9 +561,11 @@ def stage2(flight: Flight) -> None:
     flight.obc.behave("stopped")
 
 
-def _grew(before: object, after: object, counter: str) -> int | None:
-    """How much an uplink status counter grew; None if the firmware reports no such one."""
-    old, new = getattr(before, counter, None), getattr(after, counter, None)
+def _grew(before: UplinkStatus | None, after: UplinkStatus | None, counter: str) -> int | None:
+    """How much the uplink status counter `counter` grew; None if the firmware reports no
+    such counter."""
+    old = None if before is None else getattr(before, counter)
+    new = None if after is None else getattr(after, counter)
     if old is None or new is None:
         return None
     return int(new - old) % (1 << 32)

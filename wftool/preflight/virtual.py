@@ -170,11 +170,12 @@ def on_virtual_fc(
         lines = [f"virtual FC ({binary}), {subject}"]
         if backup is not None and backup.skipped:
             lines.append(f"not loaded (hardware, or not in SITL): {', '.join(backup.skipped)}")
-        lines.append(
-            "for the virtual FC: fsp_time_reply ON (FC-clock timings), "
-            "runaway_takeoff_prevention OFF, the simulated radio the pilot's"
-            + ("; ARM on the radio's AUX1" if backup is None and session.radio else "")
-        )
+        virtual = ["fsp_time_reply ON (FC-clock timings)", "runaway_takeoff_prevention OFF"]
+        if session.radio is not None:
+            virtual.append("the simulated radio the pilot's")
+            if backup is None:
+                virtual.append("ARM on its AUX1")
+        lines.append(f"for the virtual FC: {', '.join(virtual)}")
         yield Preflight(
             session.fc, session.fsp_url, partial(_pilot, session.radio), subject=lines, log=log,
             closing=partial(session.fc.close_client, session.fsp_uart), **options,
