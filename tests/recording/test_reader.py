@@ -12,6 +12,7 @@ from mcap.reader import make_reader
 from tests.fsp.test_twoway import RC
 from tests.recording.data.make_recordings import (
     RECORDINGS,
+    STATUS_V1_RECORDING,
     UPLINK_RECORDING,
     events,
     run,
@@ -149,3 +150,19 @@ def test_a_recording_from_before_the_uplink_status_topic_still_shows_the_fcs_rep
     replayed = replay_recording(path).summary()
     assert replayed == run(events=uplink_events).summary()
     assert replayed.fc_uplink is not None and replayed.fc_uplink.status.accepted == 62
+
+
+def test_a_recording_of_the_uplink_status_before_it_said_who_flies_still_reads():
+    """A file as wftool 301153b wrote it (make_recordings.py): `/fsp/uplink_status` in the
+    older `UplinkStatus`, which the file embeds. An independent reader decodes it by that
+    schema; the events, replay and the FC's reports are today's."""
+    from tests.recording.test_rosbag import read_bag
+
+    path = DATA / STATUS_V1_RECORDING
+    statuses = [message for _, message in read_bag(path)["/fsp/uplink_status"]]
+    assert statuses and not hasattr(statuses[0], "authority")
+    assert statuses[-1].accepted == 62 and statuses[-1].live
+    assert list(RecordingReader(path).events()) == uplink_events()
+    replayed = replay_recording(path).summary()
+    assert replayed == run(events=uplink_events).summary()
+    assert replayed.fc_uplink is not None and replayed.fc_uplink.status.authority is None

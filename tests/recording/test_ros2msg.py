@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from tests.fsp.strategies import frames
-from wftool.fsp import SensorFrame, UplinkFlag, UplinkStatus
+from wftool.fsp import Authority, AuthorityExit, SensorFrame, UplinkFlag, UplinkStatus
 from wftool.fsp.packets import FAILSAFE_PHASES
 from wftool.recording import ros2msg
 from wftool.recording.events import Event, StreamHealth, UplinkReport
@@ -162,28 +162,54 @@ def test_any_frame_id_moves_what_follows_the_header_by_the_rules(store, frame_id
     assert (decoded.failsafe_phase, decoded.tx_time_us, decoded.timed_out.sec) == (3, 8, 1)
 
 
-@pytest.mark.parametrize("flag", list(UplinkFlag)[:5], ids=lambda flag: flag.name)
+@pytest.mark.parametrize("flag", list(UplinkFlag), ids=lambda flag: flag.name)
 def test_uplink_status(store, flag):
     """Every field where the message names it: each flag alone, counters at their limits,
-    both stamps on the frames' clock (Unix time)."""
+    the stamps on the frames' clock (Unix time), who flies."""
     top = 2**32 - 1
-    status = UplinkStatus(2**24 - 1, top, top, top - 1, top - 2, top - 3, 65535, flag, 6, 12345)
-    report = UplinkReport(status, 12.5, 12.25)
+    status = UplinkStatus(
+        2**24 - 1, top, top, top - 1, top - 2, top - 3, 65535, flag, 6, 12345,
+        Authority.ENGAGED, AuthorityExit.FOREIGN, 500, 12000, 2**24 - 1, top - 4, top - 5,
+        top - 6, 885, 2115,
+    )  # fmt: skip
+    report = UplinkReport(status, 12.5, 12.25, 12.125)
     encoder = FrameEncoder(1_000_000_000_000)
     msg = store.deserialize_cdr(encoder.uplink_status(report), "wftool_msgs/msg/UplinkStatus")
     assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == (1012, 500_000_000)
     assert (msg.timed_out.sec, msg.timed_out.nanosec) == (1012, 250_000_000)
+    assert (msg.exit_time.sec, msg.exit_time.nanosec) == (1012, 125_000_000)
     assert (msg.command_seq, msg.tx_time_us, msg.accepted, msg.stale, msg.timeouts, msg.rejected,
             msg.timeout_ms, msg.failsafe_phase, msg.timed_out_us) == (
         2**24 - 1, top, top, top - 1, top - 2, top - 3, 65535, 6, 12345,
     )  # fmt: skip
+    assert (msg.authority, msg.exit, msg.proof_ms, msg.exit_us, msg.sender, msg.foreign,
+            msg.refused, msg.msp_rc_refused, msg.rc_min_us, msg.rc_max_us) == (
+        msg.AUTHORITY_ENGAGED, msg.EXIT_FOREIGN, 500, 12000, 2**24 - 1, top - 4, top - 5,
+        top - 6, 885, 2115,
+    )  # fmt: skip
     flags = {name: getattr(msg, name) for name in ("live", "override", "obc_receiver",
-                                                    "rx_loss", "armed")}  # fmt: skip
+                                                    "rx_loss", "armed", "arm_switch")}  # fmt: skip
     assert flags == {name: name == flag.name.lower() for name in flags}
     phases = [getattr(msg, f"FAILSAFE_{name}") for name in FAILSAFE_PHASES]  # Betaflight's
     assert phases == list(range(len(FAILSAFE_PHASES)))
+    authorities = [getattr(msg, f"AUTHORITY_{a.name}") for a in Authority]  # the spec's
+    exits = [getattr(msg, f"EXIT_{e.name}") for e in AuthorityExit]
+    assert (authorities, exits) == (list(Authority), list(AuthorityExit))
     before = encoder.uplink_status(UplinkReport(status, 12.5, None))  # no timeout yet
     assert store.deserialize_cdr(before, "wftool_msgs/msg/UplinkStatus").timed_out.sec == 0
+
+
+def test_a_status_of_firmware_without_who_flies_says_unknown(store):
+    status = UplinkStatus(7, 100, 7, 0, 0, 0, 50, UplinkFlag.LIVE, 0, 0)  # 36 bytes' worth
+    encoder = FrameEncoder(1_000_000_000_000)
+    msg = store.deserialize_cdr(
+        encoder.uplink_status(UplinkReport(status, 12.5, None)), "wftool_msgs/msg/UplinkStatus"
+    )
+    assert msg.authority == msg.AUTHORITY_UNKNOWN == 255
+    assert (msg.exit, msg.exit_time.sec, msg.sender, msg.rc_min_us, msg.arm_switch) == (
+        0, 0, 0, 0, False,
+    )  # fmt: skip
+    assert msg.live and msg.command_seq == 7
 
 
 def test_health(store):

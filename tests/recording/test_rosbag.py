@@ -289,17 +289,8 @@ def test_the_fcs_uplink_statuses_are_recorded_each_change_at_once(recorded, read
     for message in recorded_statuses:
         status = by_tx[message.tx_time_us]
         flags = [message.live, message.override, message.obc_receiver, message.rx_loss,
-                 message.armed]  # fmt: skip
-        assert flags == [
-            status.has(flag)
-            for flag in (
-                UplinkFlag.LIVE,
-                UplinkFlag.OVERRIDE,
-                UplinkFlag.OBC_RECEIVER,
-                UplinkFlag.RX_LOSS,
-                UplinkFlag.ARMED,
-            )
-        ]
+                 message.armed, message.arm_switch]  # fmt: skip
+        assert flags == [status.has(flag) for flag in UplinkFlag]
         assert (message.command_seq, message.accepted, message.stale, message.rejected,
                 message.timeouts, message.timeout_ms, message.failsafe_phase,
                 message.timed_out_us) == (

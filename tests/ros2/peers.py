@@ -15,7 +15,9 @@ DISCOVERY_S); it prints "ready" once subscribed, "matched" once every topic has 
 as they are, on each topic (under NAMESPACE) with its type, once every topic is matched.
 `command` is a ROS 2 program commanding the aircraft: it publishes `wftool_msgs/RcCommand`
 on TOPIC as the JSON PLAN says, a list of {"rc": [six values], "age_ns": how old its stamp
-is made (negative: ahead), "same_stamp": reuse the previous stamp, "after_s": wait first}.
+is made (negative: ahead; a clock stepped back), "same_stamp": reuse the previous stamp,
+"no_stamp": leave it unset, "arming": the request (1 arm, 2 disarm), "after_s": wait first};
+it prints "matched" once it found the node, "done" when the plan is through.
 `node` is wftool's node taking commands (`Ros2Bridge`, accept_commands) for SECONDS, as the
 live loop would (it takes a command every millisecond); it prints its discovery scope, then
 its command counts as JSON.
@@ -196,10 +198,14 @@ def _command(topic: str, plan: list[dict[str, Any]], seconds: float) -> None:
         message.roll, message.pitch, message.yaw, message.throttle, message.aux3, message.aux4 = (
             step["rc"]
         )
-        if not step.get("same_stamp"):
+        if step.get("no_stamp"):
+            stamp_ns = 0
+        elif not step.get("same_stamp"):
             stamp_ns = node.get_clock().now().nanoseconds - step.get("age_ns", 0)
         message.header.stamp.sec, message.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
+        message.arming = step.get("arming", 0)
         publisher.publish(message)
+    print("done", flush=True)
     time.sleep(0.5)
     node.destroy_node()
     rclpy.shutdown()
@@ -226,6 +232,34 @@ def command(
     )
     assert result.returncode == 0, result.stderr[-2000:]
     return result.stdout.split()[0]
+
+
+@contextmanager
+def commanders(
+    topic: str, plans: Sequence[list[dict[str, Any]]], seconds: float = 20.0
+) -> Iterator[list[subprocess.Popen]]:
+    """`command` processes, one per plan, started together and matched with the node (each
+    then waits a second before its plan: they publish side by side); waits for them at the
+    end, unless the block ended one (a killed publisher)."""
+    verb = [sys.executable, "-m", "tests.ros2.peers", "command", topic]
+    processes = [
+        subprocess.Popen(
+            [*verb, json.dumps(plan), str(seconds)], cwd=REPO, stdout=subprocess.PIPE, text=True
+        )
+        for plan in plans
+    ]
+    try:
+        for process in processes:
+            assert process.stdout is not None
+            assert process.stdout.readline().strip() == "matched", "a publisher found no node"
+        yield processes
+        for process in processes:
+            process.wait(timeout=seconds + 30)
+    finally:
+        for process in processes:
+            if process.poll() is None:
+                process.kill()
+                process.wait()
 
 
 def _node(namespace: str, seconds: float) -> None:

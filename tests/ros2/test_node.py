@@ -3,6 +3,7 @@ process receives from it, and what it does with the commands another one publish
 
 from __future__ import annotations
 
+import itertools
 import os
 import time
 from collections.abc import Iterator
@@ -19,7 +20,7 @@ from tests.recording.test_rosbag import (
 )
 from tests.ros2 import peers
 from wftool.errors import Ros2Error, UsageError
-from wftool.fsp import SensorFrame, UplinkFlag
+from wftool.fsp import Authority, AuthorityExit, SensorFrame, UplinkFlag, UplinkStatus
 from wftool.recording.events import new_uplink
 from wftool.ros2.commands import CommandCounts
 from wftool.ros2.node import (
@@ -125,7 +126,7 @@ def test_every_frame_reaches_a_separate_subscriber(bridge: Ros2Bridge, tmp_path:
 
 def flags_of(message: dict) -> int:
     """The `UplinkFlag` bits of an `UplinkStatus` message's flags."""
-    return sum(flag for flag in list(UplinkFlag)[:5] if message[flag.name.lower()])
+    return sum(flag for flag in UplinkFlag if message[flag.name.lower()])
 
 
 def _assert_imu(messages: list[dict], frames: list[SensorFrame]) -> None:
@@ -147,37 +148,45 @@ def _wait_for_subscribers(bridge: Ros2Bridge, timeout_s: float = 10.0) -> None:
 
 
 def _poll(bridge: Ros2Bridge, seconds: float) -> list[tuple[int, ...]]:
-    """The loop's side: take a command every millisecond, and 'send' it."""
-    sent = []
+    """The loop's side: take a command every millisecond, and 'send' it (with the arming
+    request the node asks for after it, as a trailing element)."""
+    sent: list[tuple[int, ...]] = []
     end = time.monotonic() + seconds
     while time.monotonic() < end:
         rc = bridge.command()
         if rc is not None:
             bridge.sent()
-            sent.append(rc)
+            arming = bridge.arming()
+            sent.append(tuple(rc) if arming is None else (*rc, int(arming)))
         time.sleep(0.001)
     return sent
 
 
-@pytest.mark.parametrize("bridge", [{"accept_commands": True}], indirect=True)
-def test_commands_pass_only_fresh_in_range_and_newer(bridge: Ros2Bridge):
-    good = [[1100 + 100 * i, 1500, 1500, 1000, 1000, 1000] for i in range(5)]
+@pytest.mark.parametrize(
+    "bridge", [{"accept_commands": True, "command_max_age_ns": 300 * MS}], indirect=True
+)
+def test_commands_pass_only_in_range_and_newer_by_their_publisher_stamps(bridge: Ros2Bridge):
+    """Within a link (its publisher's commands less than the age limit apart, 300 ms here)
+    a command must be newer by its stamp than the last taken; stamps are nothing else: after
+    a silence a publisher starts a new link whatever its clock says."""
+    good = [[1100 + 100 * i, 1500, 1500, 1000, 1000, 1000] for i in range(6)]
     plan = [
-        {"rc": good[0], "after_s": 0.05},
-        {"rc": [2251, 1500, 1500, 1000, 1000, 1000], "after_s": 0.05},  # out of range
-        {"rc": good[1], "after_s": 0.05},
+        {"rc": good[0], "after_s": 0.02},
+        {"rc": [2251, 1500, 1500, 1000, 1000, 1000], "after_s": 0.02},  # out of range
+        {"rc": good[1], "after_s": 0.02},
         {"rc": good[1], "same_stamp": True, "after_s": 0.005},  # a stuck sender's repeat
-        {"rc": good[2], "age_ns": 200 * MS, "after_s": 0.05},  # stale
-        {"rc": good[3], "age_ns": -500 * MS, "after_s": 0.05},  # ahead of the clock
-        {"rc": [0, 0, 0, 0, 0, 0], "after_s": 0.05},  # an unset message
-        {"rc": good[4], "after_s": 0.05},
+        {"rc": good[2], "age_ns": 200 * MS, "after_s": 0.02},  # older than the one before
+        {"rc": [0, 0, 0, 0, 0, 0], "after_s": 0.02},  # an unset message
+        {"rc": good[3], "no_stamp": True, "after_s": 0.02},  # unstamped
+        {"rc": good[4], "age_ns": 5_000 * MS, "after_s": 0.5},  # after a silence: a new link
+        {"rc": good[5], "age_ns": 4_990 * MS, "after_s": 0.02},  # newer within it
     ]
     topic = f"{bridge.options.namespace}/fsp/command"
     with _polling(bridge) as sent:
         assert peers.command(topic, plan) == "matched"
-    assert sent == [tuple(good[0]), tuple(good[1]), tuple(good[4])]
+    assert sent == [tuple(good[0]), tuple(good[1]), tuple(good[4]), tuple(good[5])]
     assert bridge.command_counts == CommandCounts(
-        received=8, sent=3, stale=1, future=1, out_of_range=2, not_newer=1
+        received=9, sent=4, out_of_range=2, not_newer=2, unstamped=1, links=2
     )
 
 
@@ -216,6 +225,92 @@ def test_a_silent_sender_is_silence(bridge: Ros2Bridge):
     assert len(sent) == 25 and len(set(sent)) == 25
     assert _poll(bridge, 0.5) == []  # after the last: nothing, for as long as it lasts
     assert bridge.command_counts.sent == 25
+
+
+def _plan(roll: int, count: int, **step: object) -> list[dict]:
+    """`count` commands at 100 Hz, roll `roll` (who sent it), throttle counting up."""
+    return [{"rc": [roll, 1500, 1500, 1000 + i, 1000, 1000], "after_s": 0.01, **step}
+            for i in range(count)]  # fmt: skip
+
+
+def _switches(sent: list[tuple[int, ...]]) -> int:
+    """How often the sender (the roll value) changes along what was sent."""
+    return sum(a[0] != b[0] for a, b in itertools.pairwise(sent))
+
+
+@pytest.mark.parametrize("bridge", [{"accept_commands": True}], indirect=True)
+def test_a_twin_publisher_is_counted_and_ignored(bridge: Ros2Bridge):
+    """Two programs publishing commands at 100 Hz side by side: what reaches the FC comes
+    from one of them while it publishes, the other's are foreign; a hand-over only once
+    the first has finished (its publisher silent for the age limit)."""
+    topic = f"{bridge.options.namespace}/fsp/command"
+    with _polling(bridge) as sent, peers.commanders(topic, [_plan(1100, 200), _plan(1900, 200)]):
+        pass
+    counts = bridge.command_counts
+    assert _switches(sent) <= 1, [rc[0] for rc in sent]
+    first = [rc for rc in sent if rc[0] == sent[0][0]]
+    assert len(first) >= 150  # the first publisher's commands got through
+    assert counts.foreign >= 150 and counts.links == 1 + _switches(sent)
+    throttles = [rc[3] for rc in first]
+    assert throttles == sorted(set(throttles))  # in order, each once
+
+
+@pytest.mark.parametrize("bridge", [{"accept_commands": True}], indirect=True)
+def test_a_dead_publisher_hands_over_to_the_live_one_after_the_age_limit(bridge: Ros2Bridge):
+    """The publisher taken is killed (SIGKILL) mid-run: its twin, ignored until then, is
+    taken once the first has been silent for the age limit."""
+    topic = f"{bridge.options.namespace}/fsp/command"
+    plans = [_plan(1100, 300), _plan(1900, 300)]
+    with _polling(bridge) as sent, peers.commanders(topic, plans) as processes:
+        while len(sent) < 50 or bridge.command_counts.foreign < 20:  # both publishing
+            time.sleep(0.01)
+        taken = {1100: 0, 1900: 1}[sent[0][0]]
+        processes[taken].kill()
+        before = len(sent)
+        while not any(rc[0] != sent[0][0] for rc in sent[before:]):
+            time.sleep(0.01)
+    assert _switches(sent) == 1
+    counts = bridge.command_counts
+    assert counts.links == 2 and counts.foreign >= 20
+
+
+@pytest.mark.parametrize("bridge", [{"accept_commands": True}], indirect=True)
+def test_a_publisher_clock_stepping_back_30_s_costs_one_age_limit(bridge: Ros2Bridge):
+    """A publisher's clock steps back 30 s mid-run (100 Hz): its commands are not newer
+    than the last taken until its link ends, 50 ms later; then they pass again. (Compared
+    with the node's clock, as before, it would lose 30 s of them.)"""
+    topic = f"{bridge.options.namespace}/fsp/command"
+    plan = _plan(1100, 100) + _plan(1200, 100, age_ns=30_000 * MS)
+    with _polling(bridge) as sent:
+        assert peers.command(topic, plan) == "matched"
+    counts = bridge.command_counts
+    after = [rc for rc in sent if rc[0] == 1200]
+    assert counts.links == 2 and 1 <= counts.not_newer < 20, counts
+    assert len(after) >= 100 - 20 and after[-1][3] == 1099  # through to its last command
+
+
+@pytest.mark.parametrize("bridge", [{"accept_commands": True}], indirect=True)
+def test_arming_is_forwarded_only_when_the_fc_says_its_receiver_is_the_obc(bridge: Ros2Bridge):
+    topic = f"{bridge.options.namespace}/fsp/command"
+    plan = [{"rc": RC, "after_s": 0.02}, {"rc": RC, "arming": 1, "after_s": 0.02}]
+    with _polling(bridge) as sent:  # no status from the FC yet: not forwarded
+        assert peers.command(topic, plan) == "matched"
+    assert [len(rc) for rc in sent] == [6, 6]
+    bridge.fc_status = fc_status(UplinkFlag.LIVE | UplinkFlag.OBC_RECEIVER)
+    plan += [{"rc": RC, "arming": 2, "after_s": 0.02}, {"rc": RC, "arming": 7, "after_s": 0.02}]
+    with _polling(bridge) as sent:
+        assert peers.command(topic, plan) == "matched"
+    assert sent == [tuple(RC), (*RC, 1), (*RC, 2)]  # the undefined request: out of range
+    counts = bridge.command_counts
+    assert (counts.arming_sent, counts.arming_refused, counts.out_of_range) == (2, 1, 1)
+
+
+def fc_status(flags: int) -> UplinkStatus:
+    """An uplink status of the FC with `flags`, who flies and its pulse range (spec §12)."""
+    return UplinkStatus(
+        5, 2_000_000, 5, 1, 0, 0, 50, flags, 0, 0, Authority.RECEIVER, AuthorityExit.NONE, 500,
+        0, 0x5A17C3, 0, 0, 0, 885, 2115,
+    )  # fmt: skip
 
 
 def test_without_accept_commands_nothing_subscribes(bridge: Ros2Bridge):

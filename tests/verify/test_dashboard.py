@@ -107,3 +107,19 @@ def test_dashboard_shows_when_timed_commands_acted():
     line = next(line for line in text.splitlines() if "timed 101 reports" in line)
     assert "P1 10 µs  P50 60 µs  P99 120 µs  (P99−P1 110 µs, 100 on time)" in line
     assert "late 1  refused 0  dropped 0  reports lost 0  latest 4.000 ms" in text
+
+
+def test_dashboard_says_who_flies_as_the_fc_reports_it():
+    """Firmware with spec §15: the authority and why the OBC last lost it; older firmware
+    (36-byte statuses, above) shows no such line."""
+    from tests.fsp.test_decoder import authority_status, packet_at
+    from wftool.fsp import AuthorityExit
+
+    monitor = StreamMonitor("socket://127.0.0.1:5762")
+    monitor.connected(0.0)
+    wire = packet_at(0, 1_000_000) + authority_status(1_003_000, 1_001_000, AuthorityExit.TIMEOUT)
+    monitor.feed(wire, 0.01)
+    text = screen(monitor)
+    assert "who flies: proving (last exit: timeout)" in " ".join(text.split())
+    feed_fc_uplink(older := StreamMonitor("socket://127.0.0.1:5762"), 1200)
+    assert "who flies" not in screen(older)

@@ -124,6 +124,44 @@ def test_uplink_echo_is_matched_with_round_trip_time():
     assert [c.passed for c in checks if c.name == "uplink echoed"] == [True]
 
 
+def test_uplink_echo_is_judged_only_while_the_obc_steers():
+    """Under a safety pilot the FC echoes the OBC's commands only once the pilot engaged it
+    (spec §15): the steps sent before the FC said so are no steps of the echo's."""
+    from wftool.fsp import Authority, AuthorityExit, UplinkFlag, UplinkStatus, encode_uplink_status
+
+    def status(t_us: int, authority: Authority) -> bytes:
+        return encode_uplink_status(
+            UplinkStatus(
+                1, t_us, 1, 0, 0, 0, 50, UplinkFlag.LIVE, 0, 0, authority, AuthorityExit.NONE, 500,
+                0, 7, 0, 0, 0, 885, 2115,
+            )
+        )  # fmt: skip
+
+    monitor = StreamMonitor("test", uplink=UplinkTracker())
+    monitor.connected(0.0)
+    rate, echo_roll, engaged_at = 50.0, 1500, 60
+    for i in range(120):
+        t = i / rate
+        base = 1_000_000 + i * 20_000
+        authority = Authority.ENGAGED if i >= engaged_at else Authority.PROVING
+        rc = pattern_command(i, rate)
+        monitor.command_sent(rc, t)
+        if i > engaged_at:  # the FC flies the OBC's commands once engaged (a period late)
+            echo_roll = pattern_command(i - 1, rate)[0]
+        rc_frame = (echo_roll, 1500, 1500, 1000, 1000, 1000)
+        frames = (frame(base, rc=rc_frame), frame(base + 10_000, rc=rc_frame))
+        packet = StatePacket(base + 10_500, frames, i, True)
+        monitor.feed(encode_state(packet) + status(base + 10_600, authority), t + 0.0001)
+    uplink = monitor.summary().uplink
+    assert uplink.commands_sent == 120
+    # the first command, before any status (an FC without E3 is judged as ever), then from
+    # the 62nd on (61 to 119, the status of the engagement read after the 61st): 12 steps
+    assert uplink.steps_sent == 1 + 12
+    assert uplink.steps_echoed == 12
+    checks = judge(monitor.summary(), Criteria(uplink=True)).checks
+    assert [c.passed for c in checks if c.name == "uplink echoed"] == [True]
+
+
 def feed_two_way(monitor: StreamMonitor, seconds: float, record=None) -> int:
     """A simulated link whose FC answers every command (tests/fsp/test_twoway.py), fed as the
     live loop does; `record(kind, t, payload)` sees every event. The number of commands."""

@@ -16,12 +16,14 @@ from wftool.errors import ProtocolError, UsageError, WftoolError
 from wftool.fc.backup import DEFAULT_BACKUP_DIR
 from wftool.fc.board import Board, SerialBoard, leave_open_cli
 from wftool.fc.fsp_setup import (
+    BAUD_RATES,
     CMD_TIMEOUT_MS_DEFAULT,
     CMD_TIMEOUT_MS_RANGE,
     FAILSAFE_PROCEDURES,
     Control,
     ObcOnly,
     SafetyPilot,
+    check_baud,
     fsp_planner,
     parse_channel,
     parse_range,
@@ -132,7 +134,10 @@ def configure() -> None:
 
 @configure.command("fsp")
 @click.option("--uart", type=click.IntRange(1, 10), required=True, help="UART number for FSP.")
-@click.option("--baud", type=click.IntRange(9600), required=True, help="FSP baud rate.")
+@click.option(
+    "--baud", type=int, required=True,
+    help=f"FSP baud rate: one of the FC's ({BAUD_RATES[0]} ... {BAUD_RATES[-1]}).",
+)  # fmt: skip
 @click.option(
     "--rate",
     type=click.IntRange(RATE_HZ_MIN, RATE_HZ_MAX),
@@ -147,7 +152,7 @@ def configure() -> None:
 )  # fmt: skip
 @click.option(
     "--override-range", metavar="START-END", default="1700-2100", show_default=True,
-    help="Where the switch is on, in µs.",
+    help="Where the switch is on, in µs; its low end (up to 1100 µs) must be off.",
 )  # fmt: skip
 @click.option(
     "--cmd-timeout-ms", type=click.IntRange(*CMD_TIMEOUT_MS_RANGE),
@@ -173,11 +178,17 @@ def configure_fsp(
     """Set up FSP on a UART: port, who flies, command timeout, bidir DShot, RPM filters, rates.
 
     By default the board's radio stays its receiver and the OBC's commands override roll,
-    pitch, yaw and throttle only while the pilot's --override-switch is on; a silent, stuck
-    or garbled OBC hands them back to the pilot within --cmd-timeout-ms. --obc-only makes
-    the OBC the only receiver: when it is gone, Betaflight's failsafe does what
-    --failsafe-procedure says, and no human can take over.
+    pitch, yaw and throttle only once the pilot has engaged it with --override-switch (the
+    OBC ready, the switch turned on); a silent, stuck, garbled, restarted or twinned OBC
+    hands them back to the pilot within --cmd-timeout-ms, until engaged again. --obc-only
+    makes the OBC the only receiver, arming only by its arming requests (ARM on AUX1, held
+    by the FC): when it is gone, Betaflight's failsafe does what --failsafe-procedure says,
+    and no human can take over. What the FC will do is printed before anything is applied.
     """
+    try:
+        check_baud(baud)
+    except ValueError as exc:
+        raise UsageError(f"--baud: {exc}") from None
     control = _control(obc_only, failsafe_procedure, override_switch, override_range)
     _apply(
         port,

@@ -16,7 +16,7 @@ from wftool.fsp import DEFAULT_BAUDRATE, ESTIMATORS
 from wftool.fsp.packets import RC_PULSE_US
 from wftool.ros2.commands import DEFAULT_MAX_AGE_NS
 from wftool.ros2.node import COMMAND_TOPIC, DEFAULT_DEPTH, Ros2Bridge, Ros2Options
-from wftool.verify.dashboard import UPLINK_FLAGS
+from wftool.verify.dashboard import UPLINK_FLAGS, who_flies
 from wftool.verify.monitor import StreamSummary
 from wftool.verify.session import VerifySession
 
@@ -30,12 +30,14 @@ node_options = _options(
                  "them)."),
     click.option("--accept-commands", is_flag=True,
                  help="Take RC commands (wftool_msgs/RcCommand) on NAMESPACE/fsp/command and "
-                 "send them to the FC. Each is sent at most once, only if fresh and in range; "
-                 "the rest are dropped and counted on NAMESPACE/fsp/command_status."),
+                 "send them to the FC, from one publisher at a time. Each is sent at most once, "
+                 "only if fresh, in range and newer than its publisher's last; the rest are "
+                 "dropped and counted on NAMESPACE/fsp/command_status."),
     click.option("--command-max-age", "command_max_age_ms",
                  type=click.FloatRange(0, 1000, min_open=True), default=DEFAULT_MAX_AGE_NS / 1e6,
                  show_default=True, metavar="MS",
-                 help="How old (header.stamp) a command may be when it is sent."),
+                 help="How long after it arrived a command may still be sent, and how long a "
+                 "publisher's silence ends its turn (the node's monotonic clock)."),
     click.option("--domain-id", type=click.IntRange(0, 232),
                  help="The ROS 2 domain [ROS_DOMAIN_ID, or 0]."),
     click.option("--qos-depth", type=click.IntRange(1, 100_000), default=DEFAULT_DEPTH,
@@ -83,9 +85,11 @@ def describe(bridge: Ros2Bridge) -> list[str]:
         lines.append("commands: not taken (--accept-commands takes them on fsp/command)")
     else:
         lines.append(
-            f"commands: [bold]taken[/] on {command}: sent once each, if at most "
-            f"{options.command_max_age_ns / 1e6:g} ms old and every value in "
-            f"{RC_PULSE_US[0]}-{RC_PULSE_US[1]} µs"
+            f"commands: [bold]taken[/] on {command} from one publisher at a time (another "
+            f"after {options.command_max_age_ns / 1e6:g} ms of its silence): sent once each, "
+            f"if at most {options.command_max_age_ns / 1e6:g} ms old and every value in the "
+            f"FC's pulse range ({RC_PULSE_US[0]}-{RC_PULSE_US[1]} µs until it says); arming "
+            "requests only to an FC whose receiver is the OBC"
         )
     return lines
 
@@ -183,7 +187,7 @@ def status_line(summary: StreamSummary, bridge: Ros2Bridge) -> str:
     if bridge.gate is not None:
         counts = bridge.command_counts
         line += f"; commands {counts.received} received, {counts.sent} sent, "
-        line += f"{counts.dropped} dropped"
+        line += f"{counts.dropped} dropped ({counts.foreign} of another publisher)"
     report = summary.fc_uplink
     if report is not None:  # what the FC made of them (E3)
         status = report.status
@@ -192,6 +196,8 @@ def status_line(summary: StreamSummary, bridge: Ros2Bridge) -> str:
             f"; the FC: {status.accepted} accepted, {status.stale} stale, "
             f"{status.timeouts} timeouts; {', '.join(on)}; failsafe {status.failsafe_phase_name}"
         )
+        if status.authority is not None:
+            line += f"; who flies: {who_flies(status)}"
     return line
 
 

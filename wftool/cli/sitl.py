@@ -2,7 +2,12 @@
 
 from __future__ import annotations
 
+import selectors
+import sys
 import tempfile
+import threading
+from collections.abc import Callable, Sequence
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -13,8 +18,9 @@ from wftool.cli.ros2 import node_from, node_options
 from wftool.cli.verify import criteria_options, err, run_options, session_from, verify_stream
 from wftool.display import shown
 from wftool.errors import UsageError
-from wftool.fsp import DEFAULT_BAUDRATE
+from wftool.fsp import DEFAULT_BAUDRATE, StatePacket
 from wftool.fsp.schedule import DEFAULT_RATE_HZ, RATE_HZ_MAX, RATE_HZ_MIN
+from wftool.recording.events import Event, Sink, StreamHealth
 from wftool.sitl.process import (
     DEFAULT_PORT_BASE,
     GYRO_HZ_MAX,
@@ -23,6 +29,7 @@ from wftool.sitl.process import (
     SIM_PORT_OFFSET,
     VirtualBoard,
 )
+from wftool.sitl.radio import EngagingPilot
 from wftool.verify.live import check_duration
 from wftool.verify.session import VerifySession
 
@@ -94,8 +101,10 @@ rate_option = click.option(
     "--pilot",
     is_flag=True,
     help="A safety pilot: the simulated radio (SITL's RC input) is the receiver, ARM on its "
-    "AUX1, and the OBC's commands override the sticks while its AUX2 switch is on (held on; "
-    "sticks centred, throttle low, disarmed). Without it the OBC flies alone (RX_MSP).",
+    "AUX1 (off), sticks centred, throttle low; the OBC's commands override the sticks once "
+    "the pilot has engaged it, turning the AUX2 switch off and on whenever the FC reports "
+    "the OBC ready (or, with your OBC on the FSP port, when you press Enter). Without it the "
+    "OBC flies alone (RX_MSP), arming by arming requests.",
 )
 @click.option(
     "--verify",
@@ -137,13 +146,12 @@ def sitl(
     """Run the virtual FC: the patched SITL with FSP on UART2, until Ctrl-C (or --verify).
 
     Flown by the OBC alone (the MSP receiver), or with --pilot by a safety pilot's simulated
-    radio with the OBC overriding the sticks on its switch.
+    radio, who engages the OBC on the override switch once the FC says it is ready.
 
     With --verify it is judged as a board is: the frame rate against what fsp_rate_hz gives at
     the FC's PID looptime (read over MSP), unless --expected-rate says otherwise. Without it,
     --record, --csv, --foxglove and --ros2 read the stream for as long as the FC runs.
     """
-    from wftool.sitl.radio import HIGH
     from wftool.sitl.session import PILOT_ARM, PILOT_OVERRIDE, Motion, VirtualFcSession
 
     check_duration(verify_s, "--verify")
@@ -184,27 +192,39 @@ def sitl(
                 "FSP      ", shown(session.fsp_url, "bold"), f"  (fsp_rate_hz {rate_hz}{replies})"
             )
         )
+        sinks: list[Sink] = []
+        pilot_flips: Callable[[threading.Event], None] | None = None
         if session.radio is not None:
-            session.radio.set({f"aux{PILOT_OVERRIDE}": HIGH})
+            engaging = EngagingPilot(session.radio, PILOT_OVERRIDE, say=err.print)
+            sinks.append(PilotWatch(engaging))
+            pilot_flips = partial(flip_on_enter, engaging)
             err.print(
                 f"pilot    the simulated radio on UDP {session.fc.sim_rc_port}: ARM on "
-                f"AUX{PILOT_ARM} (off), override on AUX{PILOT_OVERRIDE} (on)"
+                f"AUX{PILOT_ARM} (off), override on AUX{PILOT_OVERRIDE} (off: the pilot turns it "
+                "on when the OBC is ready)"
             )
         if options["expected_rate"] is None:
             options["expected_rate"] = session.expected_rate_hz
         if ros2:
             bridge = node_from(**options)
-            options["sinks"] = [bridge]
+            sinks.append(bridge)
             options["commander"] = bridge if options["accept_commands"] else None
+        options["sinks"] = sinks
         if verify_s is not None:
             verify_stream(session.fsp_url, DEFAULT_BAUDRATE, verify_s, **options)
             return
         stream = serving_stream(session.fsp_url, **options)
+        if stream is None and pilot_flips is not None:
+            err.print(
+                "pilot    your OBC reads the FSP port, so the pilot cannot see when it is ready: "
+                "press Enter to turn the override switch off and on (once its uplink status "
+                "says READY)"
+            )
         err.print("running; Ctrl-C stops it")
         try:
             session.serve(
                 on_reset=lambda: err.print("the FC reset itself; starting it again"),
-                alongside=(lambda stop: stream.run(stop=stop)) if stream else None,
+                alongside=(lambda stop: stream.run(stop=stop)) if stream else pilot_flips,
             )
         except KeyboardInterrupt:
             err.print("stopping")
@@ -213,14 +233,49 @@ def sitl(
                 stream.close()
 
 
+class PilotWatch:
+    """A sink of the live loop that shows the simulated pilot each uplink status the FC
+    sends, so it engages the OBC when the FC says it is ready."""
+
+    def __init__(self, pilot: EngagingPilot) -> None:
+        self.pilot = pilot
+
+    def event(self, event: Event) -> None:
+        pass
+
+    def packets(self, packets: Sequence[StatePacket], health: StreamHealth | None = None) -> None:
+        self.pilot.observe(health.uplink.status if health and health.uplink else None)
+
+    def close(self) -> None:
+        pass
+
+
+def flip_on_enter(pilot: EngagingPilot, stop: threading.Event) -> None:
+    """Turn the pilot's override switch off and on at each Enter on stdin, until `stop`
+    (stdin at its end, or not a terminal: nothing more to read, serving goes on)."""
+    if not sys.stdin.isatty():
+        stop.wait()
+        return
+    with selectors.DefaultSelector() as selector:
+        selector.register(sys.stdin, selectors.EVENT_READ)
+        while not stop.is_set():
+            if not selector.select(0.2):
+                continue
+            if not sys.stdin.readline():
+                stop.wait()
+                return
+            pilot.engage()
+
+
 def serving_stream(url: str, **options: Any) -> VerifySession | None:
     """The stream reader of a virtual FC served without --verify: it records and serves
-    Foxglove if asked (None if not), and judges nothing."""
+    Foxglove if asked (None if not), and judges nothing; the simulated pilot alone needs no
+    reader (the user's OBC reads the port)."""
     if not (
         options["record_path"]
         or options["csv_path"]
         or options["foxglove_port"] is not None
-        or options.get("sinks")
+        or any(not isinstance(sink, PilotWatch) for sink in options.get("sinks", ()))
     ):
         return None
     stream = session_from(url, DEFAULT_BAUDRATE, None, **options)

@@ -10,7 +10,13 @@ from dataclasses import dataclass, replace
 
 from wftool.errors import CliCommandError, ParameterError, ProtocolError
 from wftool.fc.cli_session import CliSession
-from wftool.fc.modes import AUX_CHANNELS, MODE_ARM, MODE_MSP_OVERRIDE, AuxRange
+from wftool.fc.modes import (
+    AUX_CHANNELS,
+    MODE_ARM,
+    MODE_MSP_OVERRIDE,
+    SWITCH_LOW_US,
+    AuxRange,
+)
 from wftool.fc.msp import FEATURE_RX_MSP, RECEIVER_FEATURES
 from wftool.fc.params import Command, FeatureChange, Plan, Planner, set_command
 from wftool.fsp.schedule import DEFAULT_RATE_HZ
@@ -18,6 +24,19 @@ from wftool.fsp.schedule import DEFAULT_RATE_HZ
 FSP_FUNCTION = 1 << 19
 MSP_FUNCTION = 1 << 0
 RX_SERIAL_FUNCTION = 1 << 6
+BAUD_RATES = (
+    9600, 19200, 38400, 57600, 115200, 230400, 250000, 400000, 460800, 500000, 921600,
+    1000000, 1500000, 2000000, 2470000,
+)  # fmt: skip
+"""Betaflight's `baudRates[]` (io/serial.c; the same in 2025.12 and 2026.6) but 0 (auto):
+the only rates a `serial` line takes. Kept here, by the FSP setup, until the FC's version
+support holds one table per release series."""
+MSP_BAUD_MAX = 1000000
+"""The highest MSP baud of a port without FSP (`serial`'s BAUD_1000000)."""
+FSP_BAUD_MAX = 2470000
+"""The patched firmware's `serial` takes up to BAUD_2470000 for a port with FSP."""
+MSP_BAUD_DEFAULT = 115200
+"""A port's MSP baud when FSP leaves it: Betaflight's default, which any `serial` takes."""
 CMD_TIMEOUT_MS_DEFAULT = 50
 CMD_TIMEOUT_MS_RANGE = (10, 150)
 """`fsp_cmd_timeout_ms` (spec §11): the firmware's default and range."""
@@ -87,13 +106,44 @@ PROCEDURE_OUTCOMES = {
 }
 
 
+PROOF_MS = 500
+"""How long an OBC's link must have been live before the pilot can engage it (the
+firmware's FSP_AUTHORITY_PROOF_US, spec §15; every uplink status reports it)."""
+OBC_AUX = (2, 3)
+"""The AUX channels (0 = AUX1) a command carries, aux3 and aux4: the OBC's."""
+ARM_AUX = 0
+"""AUX1: the ARM switch the FC holds for the OBC alone (spec §14)."""
+ARM_RANGE_US = (1700, 2100)
+"""ARM's range on AUX1 with the OBC alone: on at the 2000 µs the FC holds for an arming
+request, off at its 1000 µs."""
+
+
+def check_baud(baud: int) -> int:
+    """`baud`, if FSP can run at it: one of Betaflight's rates (`BAUD_RATES`) up to
+    `FSP_BAUD_MAX`; else `ValueError` saying which are."""
+    if baud not in BAUD_RATES:
+        rates = ", ".join(str(rate) for rate in BAUD_RATES)
+        raise ValueError(f"the FC takes no baud rate {baud} for a port: one of {rates}")
+    return baud
+
+
 @dataclass(frozen=True)
 class SafetyPilot:
-    """The board's radio is the receiver; the OBC overrides the sticks while the pilot's
-    switch (AUX`switch`) is within `on_us`."""
+    """The board's radio is the receiver; the OBC overrides the sticks while the pilot has
+    engaged it with the switch (AUX`switch`) within `on_us` (spec §15). A range that takes
+    in the switch's low end (≤ `SWITCH_LOW_US`) has no off position: `ValueError`."""
 
     switch: int = 2
     on_us: tuple[int, int] = (1700, 2100)
+
+    def __post_init__(self) -> None:
+        start, end = self.on_us
+        if AuxRange(0, MODE_MSP_OVERRIDE, self.switch - 1, start, end).off_us is None:
+            raise ValueError(
+                f"the override range {start}-{end} has no off position: a switch's low end "
+                f"(up to {SWITCH_LOW_US} µs) lies in it, so the OBC would fly with the switch "
+                "off — start it above that, e.g. 1700-2100"
+            )
 
 
 @dataclass(frozen=True)
@@ -150,6 +200,34 @@ def failsafe_outlook(settings: dict[str, str], timeout_ms: int, procedure: str) 
     ]
 
 
+def engagement_outlook(
+    pilot: SafetyPilot,
+    settings: dict[str, str],
+    timeout_ms: int,
+    arm: AuxRange | None,
+) -> list[str]:
+    """Who flies with a safety pilot and how the pilot engages the OBC (spec §15), from the
+    FC's settings: one line per step."""
+    start, end = pilot.on_us
+    switch = f"AUX{pilot.switch}"
+    arm_text = arm.describe().split(": ", 1)[1] if arm is not None else "no ARM switch yet"
+    return [
+        "who flies: the pilot — the board's radio is the receiver; the OBC can only ever "
+        "steer roll, pitch, yaw and throttle, and only once the pilot has engaged it:",
+        f"  1. the OBC sends fresh commands, every value within the FC's pulse range "
+        f"{settings['rx_min_usec']}-{settings['rx_max_usec']} µs, for {PROOF_MS} ms without a "
+        "break: its uplink status says READY",
+        f"  2. the pilot turns {switch} off and on (into {start}-{end}): ENGAGED, the OBC steers "
+        "(on before READY, it engages nothing: off and on again)",
+        f"  the sticks are the pilot's again at once, until the pilot engages it again, when the "
+        f"OBC sends no fresh command for {timeout_ms} ms (fsp_cmd_timeout_ms), {switch} goes "
+        "off, a value outside the pulse range comes, a second program commands, the OBC's "
+        "clock steps back, the radio is lost (Betaflight's failsafe, as without FSP) or the "
+        "FC disarms",
+        f"  ARM ({arm_text}), {switch} and every AUX channel are the pilot's alone",
+    ]
+
+
 def fsp_planner(
     uart: int,
     baud: int,
@@ -165,6 +243,11 @@ def fsp_planner(
     as `control` says; `time_reply` sets `fsp_time_reply` (None: leave it);
     `serial_update_rate_hz` None sets the highest the FC allows; `radio_feature` makes that
     receiver feature the FC's radio first (the virtual FC's `FEATURE_RX_UDP`)."""
+
+    try:
+        check_baud(baud)
+    except ValueError as exc:
+        raise ParameterError(str(exc)) from None
 
     def plan(session: CliSession) -> Plan:
         commands, notes = _fsp_port(session, uart, baud, control)
@@ -187,6 +270,9 @@ def fsp_planner(
             commands.append(set_command("serial_update_rate_hz", str(update_rate[1])))
         if isinstance(control, SafetyPilot):
             receiver = _safety_pilot(session, control, radio_feature, commands, notes)
+            notes.extend(
+                engagement_outlook(control, _settings(session), cmd_timeout_ms, _arm(session))
+            )
         else:
             receiver = _obc_only(session, control, cmd_timeout_ms, commands, notes)
         return Plan(commands, receiver, notes)
@@ -211,10 +297,14 @@ def _fsp_port(
     notes: list[str] = []
     for config in ports.values():
         if config.port != target and config.functions & FSP_FUNCTION:
-            commands.append(
-                Command(replace(config, functions=config.functions & ~FSP_FUNCTION).command())
+            left = replace(
+                config, functions=config.functions & ~FSP_FUNCTION, msp_baud=MSP_BAUD_DEFAULT
+            )  # FSP's rate in the MSP field would be refused without FSP (above MSP_BAUD_MAX)
+            commands.append(Command(left.command()))
+            notes.append(
+                f"FSP moves from {config.port} to {target} ({config.port}'s MSP baud back to "
+                f"{MSP_BAUD_DEFAULT})"
             )
-            notes.append(f"FSP moves from {config.port} to {target}")
     if not any(c.functions & MSP_FUNCTION for c in ports.values() if c.port != target):
         raise ParameterError(
             f"{target} is the FC's only MSP port; giving it to FSP would lock out MSP and the CLI"
@@ -259,7 +349,14 @@ def _safety_pilot(
             "the FC's map puts the sticks outside channels 1-4; MSP OVERRIDE's switch checks "
             "assume them there (use e.g. map AETR1234 or TAER1234)"
         )
-    commands.append(set_command("msp_override_channels_mask", str(override_mask(rcmap))))
+    mask = override_mask(rcmap)
+    before = session.get("msp_override_channels_mask").value
+    if before != str(mask):
+        notes.append(
+            f"msp_override_channels_mask {before} → {mask}: the sticks alone (an AUX channel "
+            "in it would be the OBC's to move, and no AUX channel is)"
+        )
+    commands.append(set_command("msp_override_channels_mask", str(mask)))
     commands.append(set_command("msp_override_failsafe", "OFF"))
     ranges = aux_ranges(session)
     used = [r for r in ranges if r.usable]
@@ -288,11 +385,19 @@ def _safety_pilot(
         notes.append(f"AUX{pilot.switch} also switches: {listed}")
     if not any(r.mode == MODE_ARM for r in used):
         notes.append("no ARM switch is set up (`aux`): the pilot cannot arm")
-    notes.append(
-        f"MSP OVERRIDE on AUX{pilot.switch} {start}-{end}: the OBC's fresh commands fly roll, "
-        "pitch, yaw and throttle while it is on; ARM and every AUX channel stay the pilot's"
-    )
+    notes.append(f"MSP OVERRIDE on AUX{pilot.switch} {start}-{end}: the pilot's engagement switch")
     return receiver
+
+
+def _settings(session: CliSession) -> dict[str, str]:
+    names = ("failsafe_delay", "failsafe_landing_time", "failsafe_throttle", "rx_min_usec",
+             "rx_max_usec")  # fmt: skip
+    return {name: session.get(name).value for name in names}
+
+
+def _arm(session: CliSession) -> AuxRange | None:
+    """The FC's (first) ARM range, if it has one."""
+    return next((r for r in aux_ranges(session) if r.usable and r.mode == MODE_ARM), None)
 
 
 def _obc_only(
@@ -302,20 +407,52 @@ def _obc_only(
     commands: list[Command],
     notes: list[str],
 ) -> FeatureChange:
-    """The MSP receiver as the FC's receiver, the failsafe procedure, what loss means."""
-    stuck = [r for r in aux_ranges(session) if r.usable and r.channel in (0, 1)]
-    if stuck:
-        listed = "; ".join(r.describe() for r in stuck)
+    """The MSP receiver as the FC's receiver, ARM on AUX1 for the FC to hold (spec §14), the
+    failsafe procedure, what loss means. Refused while a mode sits where a command sent by
+    accident would switch it (AUX3, AUX4: the OBC's), where nothing drives it (AUX2, AUX5 and
+    up: stuck at its boot value), or on AUX1 other than ARM."""
+    ranges = aux_ranges(session)
+    used = [r for r in ranges if r.usable]
+    refused = [
+        f"{r.describe()} ({_why_not(r)})"
+        for r in used
+        if r.channel != ARM_AUX or r.mode != MODE_ARM
+    ]
+    if refused:
         raise ParameterError(
-            f"FSP never drives AUX1/AUX2, so with the OBC alone these modes would be stuck: "
-            f"{listed} — move them to AUX3/AUX4 (the OBC's) or remove them"
+            "with the OBC alone no mode may sit on a channel it drives or FSP never drives, "
+            f"nor anything but ARM on AUX1: {'; '.join(refused)} — remove them first"
         )
+    arms = [r for r in used if r.mode == MODE_ARM]
+    free = [r for r in ranges if not r.usable]
+    if not arms and not free:
+        raise ParameterError("every mode range slot (`aux`) is in use: free one for ARM")
+    slot = arms[0].slot if arms else free[0].slot
+    start, end = ARM_RANGE_US
+    commands.append(Command(AuxRange(slot, MODE_ARM, ARM_AUX, start, end).command()))
+    for extra in arms[1:]:
+        commands.append(Command(AuxRange(extra.slot, 0, 0, 900, 900).command()))
+        notes.append(f"{extra.describe()} cleared: ARM is AUX1 {start}-{end}")
     procedure = FAILSAFE_PROCEDURES[obc.failsafe_procedure]
     commands.append(set_command("failsafe_procedure", procedure))
-    names = ("failsafe_delay", "failsafe_landing_time", "failsafe_throttle", "rx_min_usec")
-    settings = {name: session.get(name).value for name in names}
+    settings = _settings(session)
+    notes.append(
+        f"who flies: the OBC alone — its commands are the FC's receiver, every value within "
+        f"the FC's pulse range {settings['rx_min_usec']}-{settings['rx_max_usec']} µs; it arms "
+        f"and disarms only by an arming request (spec §14): the FC holds ARM on AUX1 "
+        f"({start}-{end}), which no command moves"
+    )
     notes.extend(failsafe_outlook(settings, timeout_ms, procedure))
     return FeatureChange(enable=FEATURE_RX_MSP, disable=RECEIVER_FEATURES & ~FEATURE_RX_MSP)
+
+
+def _why_not(mode_range: AuxRange) -> str:
+    """Why a mode range cannot stay with the OBC alone."""
+    if mode_range.channel in OBC_AUX:
+        return "the OBC's channel: a command sent by accident would switch it"
+    if mode_range.channel == ARM_AUX:
+        return "AUX1 is the ARM switch the FC holds for the OBC"
+    return "FSP never drives it: stuck at its boot value"
 
 
 def parse_channel(name: str) -> int:

@@ -10,12 +10,13 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
+from wftool.fc.fsp_setup import OBC_AUX
 from wftool.fc.modes import MODE_ARM
 from wftool.fsp.packets import ArmingAction, Authority, UplinkFlag, UplinkStatus
 from wftool.preflight.obc import FrameSeen, Obc, Sent
 from wftool.preflight.pilot import Pilot
 from wftool.preflight.report import Line, Report
-from wftool.preflight.settings import OBC_AUX, BoardSettings
+from wftool.preflight.settings import BoardSettings
 from wftool.preflight.watcher import STICKS, FcWatcher, Snapshot
 from wftool.progress import Log, quiet
 
@@ -106,7 +107,7 @@ class Flight:
     def _aux(self, armed: bool) -> tuple[int, int]:
         aux = []
         for channel in OBC_AUX:
-            ranges = [r for r in self.settings.ranges if r.aux == channel]
+            ranges = [r for r in self.settings.ranges if r.channel == channel]
             if armed and (arm := [r for r in ranges if r.mode == MODE_ARM]):
                 aux.append(arm[0].on_us)
                 continue

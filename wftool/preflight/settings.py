@@ -14,15 +14,8 @@ from dataclasses import dataclass
 from wftool.errors import CliCommandError
 from wftool.fc.board import Board
 from wftool.fc.cli_session import CliSession
-from wftool.fc.fsp_setup import FSP_FUNCTION, SerialPortConfig
-from wftool.fc.modes import (
-    AUX_CHANNELS,
-    MODE_ARM,
-    MODE_FAILSAFE,
-    MODE_MSP_OVERRIDE,
-    AuxRange,
-    mode_name,
-)
+from wftool.fc.fsp_setup import ARM_AUX, FSP_FUNCTION, OBC_AUX, SerialPortConfig
+from wftool.fc.modes import MODE_ARM, MODE_FAILSAFE, MODE_MSP_OVERRIDE, SWITCH_LOW_US, AuxRange
 from wftool.fc.msp import (
     FEATURE_RX_MSP,
     FailsafeConfig,
@@ -40,10 +33,6 @@ CLI_SETTINGS = (
 """What preflight reads over the CLI (MSP does not carry them)."""
 STICKS = 4
 """Roll, pitch, yaw, throttle: the first functions of the FC's channel map."""
-OBC_AUX = (3, 4)
-"""The AUX channels a command carries (aux3, aux4: spec §5)."""
-HELD_ARM_AUX = 1
-"""With the OBC alone, the FC holds the ARM switch on AUX1 for the OBC (spec §14)."""
 
 
 @dataclass(frozen=True)
@@ -213,7 +202,7 @@ def _safety_pilot(settings: BoardSettings, report: Report) -> None:
             "the override switch has an off position",
             switch.off_us is not None,
             _switch(switch),
-            f"1000 or 2000 µs {100} µs or more outside it",
+            f"its low end (≤ {SWITCH_LOW_US} µs) left out",
         )
         arms = [r for r in settings.of_mode(MODE_ARM) if r.channel == switch.channel]
         report.check(
@@ -238,25 +227,21 @@ def _safety_pilot(settings: BoardSettings, report: Report) -> None:
 
 def _obc_alone(settings: BoardSettings, report: Report) -> None:
     arms = settings.of_mode(MODE_ARM)
-    elsewhere = [r for r in arms if r.aux != HELD_ARM_AUX]
+    elsewhere = [r for r in arms if r.channel != ARM_AUX]
     report.check(
-        f"ARM on AUX{HELD_ARM_AUX} only, the switch the FC holds (arming requests)",
+        f"ARM on AUX{ARM_AUX + 1} only, the switch the FC holds (arming requests)",
         bool(arms) and not elsewhere,
         "; ".join(r.describe() for r in elsewhere) or ("no ARM range" if not arms else "yes"),
-        f"AUX{HELD_ARM_AUX}",
+        f"AUX{ARM_AUX + 1}",
     )
-    on_obc = [r for r in settings.ranges if r.mode != MODE_ARM and r.aux in OBC_AUX]
+    on_obc = [r for r in settings.ranges if r.mode != MODE_ARM and r.channel in OBC_AUX]
     report.check(
         "no mode on AUX3/AUX4 (the OBC's: a command sent by accident would switch it)",
         not on_obc,
         "; ".join(r.describe() for r in on_obc) or "none",
         "none",
     )
-    never = [
-        r
-        for r in settings.ranges
-        if r.mode != MODE_ARM and r.aux not in OBC_AUX and r.aux <= AUX_CHANNELS
-    ]
+    never = [r for r in settings.ranges if r.mode != MODE_ARM and r.channel not in OBC_AUX]
     report.check(
         "no mode on AUX1/AUX2/AUX5+ (FSP never drives them: it would be stuck)",
         not never,
@@ -281,7 +266,3 @@ def _channels(mask: int) -> str:
     """A raw channel mask as channel numbers (1-based)."""
     channels = [str(bit + 1) for bit in range(mask.bit_length()) if mask >> bit & 1]
     return f"{mask} (channels {', '.join(channels)})" if channels else "0 (none)"
-
-
-def modes_listed(ranges: list[AuxRange]) -> str:
-    return "; ".join(f"{mode_name(r.mode)} on AUX{r.aux}" for r in ranges)

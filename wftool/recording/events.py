@@ -47,6 +47,9 @@ class UplinkReport:
     if the clock could not place it), s."""
     timed_out_t: float | None
     """OBC time of the FC's latest command timeout (`timed_out_us`); None before the first."""
+    exit_t: float | None = None
+    """OBC time the OBC last lost its authority or link (`exit_us`, spec §15); None before
+    the first, or from firmware that does not report it."""
 
 
 @dataclass(frozen=True)

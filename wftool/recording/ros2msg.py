@@ -200,7 +200,15 @@ _STATUS_FLAGS = (
     UplinkFlag.LIVE, UplinkFlag.OVERRIDE, UplinkFlag.OBC_RECEIVER, UplinkFlag.RX_LOSS,
     UplinkFlag.ARMED,
 )  # fmt: skip
-"""The flags `UplinkStatus` carries as its bools, in its order."""
+"""The flags `UplinkStatus` carries as its first bools, in its order (`arm_switch` comes
+with the authority fields)."""
+_UPLINK_STATUS_FIELDS = (
+    "5I", "H", "5?", "B", "2I", "i", "I",  # counters, flags, failsafe phase, the timeout
+    "2B", "I", "i", "I", "H", "?", "4I", "2H",  # who flies (spec §15): exit, proof, sender, ...
+)  # fmt: skip
+"""`UplinkStatus` after its header."""
+AUTHORITY_UNKNOWN = 255
+"""`UplinkStatus.authority` of firmware that does not report it (its 36-byte statuses)."""
 
 
 @dataclass(frozen=True)
@@ -231,7 +239,7 @@ def _layouts(frame_id: str) -> _Layouts:
         rpm=_cdr(*header, "4H"),
         attitude=_cdr(*header, "3d"),
         health=_cdr(*header, "2I", "3?", "6Q", "2I"),
-        uplink_status=_cdr(*header, "5I", "H", f"{len(_STATUS_FLAGS)}?", "B", "2I", "i", "I"),
+        uplink_status=_cdr(*header, *_UPLINK_STATUS_FIELDS),
         msp_rc_head=_cdr(*header, "I"),
     )
 
@@ -322,19 +330,30 @@ class FrameEncoder:
         )  # fmt: skip
 
     def uplink_status(self, report: UplinkReport) -> bytes:
-        """An `UplinkStatus`, stamped when the FC sent it."""
+        """An `UplinkStatus`, stamped when the FC sent it; who flies `AUTHORITY_UNKNOWN`
+        (and zeros after it) when the firmware does not report it."""
         sec, nsec = divmod(self.stamp_ns(report.t), 1_000_000_000)
-        timed_out = (0, 0)
-        if report.timed_out_t is not None:
-            timed_out = divmod(self.stamp_ns(report.timed_out_t), 1_000_000_000)
         status = report.status
         layouts = self._layouts
+        arm_switch = status.has(UplinkFlag.ARM_SWITCH)
+        if status.authority is None:
+            authority: tuple = (AUTHORITY_UNKNOWN, 0, 0, 0, 0, 0, arm_switch, 0, 0, 0, 0, 0, 0)
+        else:
+            authority = (
+                status.authority, status.exit, status.exit_us, *self._time(report.exit_t),
+                status.proof_ms, arm_switch, status.sender, status.foreign, status.refused,
+                status.msp_rc_refused, status.rc_min_us, status.rc_max_us,
+            )  # fmt: skip
         return layouts.uplink_status.pack(
             CDR_LE, sec, nsec, len(layouts.frame_id), layouts.frame_id,
             status.command_seq, status.accepted, status.stale, status.rejected, status.timeouts,
             status.timeout_ms, *(status.has(flag) for flag in _STATUS_FLAGS), status.failsafe_phase,
-            status.tx_time_us, status.timed_out_us, *timed_out,
+            status.tx_time_us, status.timed_out_us, *self._time(report.timed_out_t), *authority,
         )  # fmt: skip
+
+    def _time(self, t: float | None) -> tuple[int, int]:
+        """A `builtin_interfaces/Time` of OBC time `t` on the frames' clock; zero for None."""
+        return (0, 0) if t is None else divmod(self.stamp_ns(t), 1_000_000_000)
 
 
 # Messages from values, for sources other than FSP frames (the MSP baseline's replies).

@@ -19,10 +19,10 @@ from typing import Any
 
 from wftool.errors import Ros2Error, UsageError
 from wftool.extras import require
-from wftool.fsp import StatePacket
+from wftool.fsp import ArmingAction, StatePacket, UplinkFlag, UplinkStatus
 from wftool.recording import ros2msg as msgs
 from wftool.recording.events import Event, StreamHealth, new_uplink
-from wftool.recording.ros2msg import FrameEncoder, Throttle
+from wftool.recording.ros2msg import AUTHORITY_UNKNOWN, FrameEncoder, Throttle
 from wftool.ros2.commands import DEFAULT_MAX_AGE_NS, CommandCounts, CommandGate
 
 NODE_NAME = "wftool"
@@ -38,6 +38,13 @@ THIS_HOST_PROFILE = Path(__file__).with_name("this_host.xml")
 PUBLICATION_MODE = "RMW_FASTRTPS_PUBLICATION_MODE"
 SPIN_TIMEOUT_S = 0.1
 """How long the command thread waits for a command before it looks whether to stop."""
+ARMING_REQUESTS = {1: ArmingAction.ARM, 2: ArmingAction.DISARM}
+"""`RcCommand.arming` (ARMING_ARM, ARMING_DISARM) as what the FC is asked; 0 asks nothing."""
+_COUNTS = (
+    "received", "sent", "stale", "out_of_range", "unstamped", "not_newer", "superseded",
+    "foreign", "links", "arming_sent", "arming_refused",
+)  # fmt: skip
+"""The `CommandCounts` fields `CommandStatus` carries, under the same names."""
 
 
 def _relative(topic: str) -> str:
@@ -180,6 +187,9 @@ class Ros2Bridge:
         self._battery_throttle = Throttle()
         self._status_throttle = Throttle()
         self._last_health: StreamHealth | None = None
+        self.fc_status: UplinkStatus | None = None
+        """The FC's newest uplink status the node was given (who flies, its pulse range)."""
+        self._arming: ArmingAction | None = None
         self.gate: CommandGate | None = None
         self._executor: Any = None
         self._spinner: threading.Thread | None = None
@@ -201,14 +211,16 @@ class Ros2Bridge:
         return sorted(names)
 
     def _start_executor(self) -> None:
-        from rclpy.experimental import EventsExecutor
+        # Not rclpy's EventsExecutor: it fails a callback that takes the message info
+        # ("SystemError: null argument to internal routine", Kilted), which carries the
+        # publisher's GID the gate latches.
+        from rclpy.executors import SingleThreadedExecutor
 
-        self._executor = executor = EventsExecutor(context=self._context)
+        self._executor = executor = SingleThreadedExecutor(context=self._context)
         executor.add_node(self._node)
         stopping = self._stopping
 
         def spin() -> None:
-            # spin_once in a loop: this EventsExecutor's spin() polls, a core's worth of CPU.
             while not stopping.is_set():
                 executor.spin_once(timeout_sec=SPIN_TIMEOUT_S)
 
@@ -247,6 +259,9 @@ class Ros2Bridge:
             uplink = new_uplink(health, before)
             if uplink is not None:
                 self._uplink_status(encoder.uplink_status(uplink))
+                self.fc_status = uplink.status
+                if self.gate is not None:
+                    self.gate.pulse_range = uplink.status.pulse_range
         if stamp and self._status_throttle.due(stamp):
             self.publish_command_status(stamp)
 
@@ -266,9 +281,12 @@ class Ros2Bridge:
 
     # Commands.
 
-    def _on_command(self, message: Any) -> None:
+    def _on_command(self, message: Any, info: Any) -> None:
+        """A command from `fsp/command`: its publisher (the GID in the message info) and
+        its arrival on the node's monotonic clock go to the gate with it."""
         assert self.gate is not None
-        rc = (
+        arrived_ns = time.monotonic_ns()
+        rc: tuple[int, ...] = (
             message.roll,
             message.pitch,
             message.yaw,
@@ -276,8 +294,18 @@ class Ros2Bridge:
             message.aux3,
             message.aux4,
         )
+        if message.arming and message.arming not in ARMING_REQUESTS:
+            rc = ()  # an undefined request: not what a command may carry
+        gid = info.get("publisher_gid") if isinstance(info, dict) else None
+        publisher = bytes(gid["data"]) if gid else None
         stamp = message.header.stamp
-        self.gate.offer(rc, stamp.sec * 1_000_000_000 + stamp.nanosec, self.ros_now_ns())
+        self.gate.offer(
+            rc,
+            stamp.sec * 1_000_000_000 + stamp.nanosec,
+            publisher,
+            arrived_ns,
+            ARMING_REQUESTS.get(message.arming),
+        )
 
     @property
     def due(self) -> float:
@@ -286,15 +314,33 @@ class Ros2Bridge:
         return 0.0 if self.gate is not None and self.gate.pending else math.inf
 
     def command(self, t: float = 0.0) -> tuple[int, ...] | None:
-        """The command to send now (fresh, in range, not sent before), if there is one."""
+        """The command to send now (fresh, in range, not sent before, of the publisher
+        latched), if there is one."""
+        self._arming = None
         if self.gate is None or not self.gate.pending:
             return None
-        return self.gate.take(self.ros_now_ns())
+        taken = self.gate.take(time.monotonic_ns())
+        if taken is None:
+            return None
+        self._arming = taken.arming
+        return taken.rc
 
     def sent(self, t: float = 0.0) -> None:
         """The port took the command `command` gave."""
         if self.gate is not None:
             self.gate.sent()
+
+    def arming(self, t: float = 0.0) -> ArmingAction | None:
+        """The arming request to send after the command `command` gave, if its publisher
+        asked for one and the FC said its receiver is the OBC (spec §14: under a safety
+        pilot arming is the pilot's, and the FC would refuse it and disengage the OBC)."""
+        action, self._arming = self._arming, None
+        if action is None or self.gate is None:
+            return None
+        status = self.fc_status
+        forwarded = status is not None and status.has(UplinkFlag.OBC_RECEIVER)
+        self.gate.arming(forwarded)
+        return action if forwarded else None
 
     @property
     def command_counts(self) -> CommandCounts:
@@ -308,10 +354,14 @@ class Ros2Bridge:
         status.header.frame_id = self.options.frame_id
         status.accepting = self.gate is not None
         status.max_age_s = self.options.command_max_age_ns / 1e9
-        for name in (
-            "received", "sent", "stale", "future", "out_of_range", "not_newer", "superseded",
-        ):  # fmt: skip
+        for name in _COUNTS:
             setattr(status, name, getattr(counts, name))
+        publisher = self.gate.latched(time.monotonic_ns()) if self.gate is not None else None
+        status.publisher = publisher.hex() if publisher is not None else ""
+        fc = self.fc_status
+        authority = fc.authority if fc is not None else None
+        status.authority = AUTHORITY_UNKNOWN if authority is None else int(authority)
+        status.steering = authority is not None and authority.steers
         self._status_publisher.publish(status)
 
 

@@ -6,6 +6,8 @@ each packet (a double timestamp, 16 u16 channels in raw order) is one receiver f
 frame rate from a process of its own (as a radio does not stall when the program holding it
 does), until stopped or its parent ends; a test or `wftool preflight` moves the sticks and
 flips the switches with `set`, and takes the radio away with `transmitting(False)`.
+`EngagingPilot` is the pilot `wftool sitl --pilot` flies with: it engages the OBC (spec §15)
+whenever the FC reports it ready.
 
     python -m wftool.sitl.radio PORT RATE_HZ    # the transmitter: state lines on stdin
 """
@@ -13,6 +15,7 @@ flips the switches with `set`, and takes the radio away with `transmitting(False
 from __future__ import annotations
 
 import json
+import math
 import os
 import selectors
 import socket
@@ -21,8 +24,9 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 
+from wftool.fsp import Authority, UplinkStatus
 from wftool.sitl.process import LOOPBACK
 
 RC_CHANNELS = 16
@@ -160,6 +164,75 @@ def transmit(port: int, rate_hz: float) -> None:
             next_send += period
             if next_send < time.monotonic() - period:  # the host stalled: no burst of stale frames
                 next_send = time.monotonic()
+
+
+class EngagingPilot:
+    """A safety pilot who lets the OBC fly: whenever the FC's uplink status says the OBC is
+    ready (spec §15), turns the override switch (AUX`override_switch`, a `SimulatedRadio`'s)
+    off and, a few radio frames later, on — the engagement only a pilot can make — and says
+    so through `say`; says too when the OBC loses the sticks. `observe` takes each status as
+    it comes (the live loop's reads) and never blocks."""
+
+    OFF_FRAMES = 3
+    """Radio frames the switch stays off: the FC's RX task must read it off before on."""
+
+    def __init__(
+        self,
+        radio: SimulatedRadio,
+        override_switch: int = 2,
+        say: Callable[[str], object] = lambda text: None,
+        now: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.radio = radio
+        self._switch = f"aux{override_switch}"
+        self._say = say
+        self._now = now
+        self._off_at: float | None = None
+        """When the switch went off for an engagement (None: not engaging)."""
+        self._on_at = -math.inf
+        """When it last went on: a status read before the FC could see that says nothing."""
+        self._authority: Authority | None = None
+        self.engagements = 0
+
+    def observe(self, status: UplinkStatus | None) -> None:
+        """The FC's newest uplink status (its `arrival_time` on the clock of `now`)."""
+        now = self._now()
+        if self._off_at is not None:
+            if now - self._off_at >= self.OFF_FRAMES * self.radio.frame_period_s:
+                self._switch_on(now)
+            return
+        if status is None or status.authority is None:
+            return
+        if status.authority is not self._authority:
+            self._tell(status)
+            self._authority = status.authority
+        settled = 2 * self.OFF_FRAMES * self.radio.frame_period_s
+        seen = status.arrival_time is None or status.arrival_time > self._on_at + settled
+        if status.authority is Authority.READY and seen:
+            self.radio.set({self._switch: LOW})
+            self._off_at = now
+            self._say(f"pilot: the OBC is ready; override switch {self._switch.upper()} off …")
+
+    def engage(self) -> None:
+        """Turn the switch off and on now (blocking for the frames between): for a pilot
+        who sees the OBC is ready where wftool cannot (the user's OBC reads the stream)."""
+        self.radio.set({self._switch: LOW})
+        time.sleep(self.OFF_FRAMES * self.radio.frame_period_s)
+        self._switch_on(self._now())
+
+    def _switch_on(self, now: float) -> None:
+        self.radio.set({self._switch: HIGH})
+        self._off_at, self._on_at = None, now
+        self.engagements += 1
+        self._say(f"pilot: override switch {self._switch.upper()} on: engaging the OBC")
+
+    def _tell(self, status: UplinkStatus) -> None:
+        authority = status.authority
+        if authority is Authority.ENGAGED:
+            self._say("pilot: the OBC is engaged: it steers the sticks")
+        elif self._authority is Authority.ENGAGED:
+            why = status.exit.name.lower().replace("_", " ") if status.exit is not None else "?"
+            self._say(f"pilot: the OBC lost the sticks ({why}): the pilot flies")
 
 
 if __name__ == "__main__":

@@ -7,9 +7,10 @@ port's baud rate, which counts once its UARTs are paced), and — on request —
 motion fed through SITL's simulator input (UDP 9003), so the stream carries moving values.
 
 Who flies it is `configure fsp`'s choice: the OBC alone (the MSP receiver, the default
-here), or a safety pilot (`pilot=True`): the simulated radio (`radio.SimulatedRadio` on
-SITL's RC input, `feature RX_UDP`) is the receiver, ARM on its AUX1, and the OBC overrides
-the sticks while its AUX2 switch is on.
+here; it arms by arming requests, the FC holding ARM on AUX1), or a safety pilot
+(`pilot=True`): the simulated radio (`radio.SimulatedRadio` on SITL's RC input, `feature
+RX_UDP`) is the receiver, ARM on its AUX1, and the OBC overrides the sticks once the pilot
+has engaged it with the AUX2 switch (`radio.EngagingPilot`).
 """
 
 from __future__ import annotations
@@ -55,8 +56,6 @@ PILOT_ARM = 1
 """The simulated radio's ARM switch: AUX1."""
 PILOT_OVERRIDE = 2
 """The simulated radio's override switch: AUX2."""
-OBC_ARM = 3
-"""Where the OBC flying alone arms: AUX3, which FSP carries (`arm_switch=OBC_ARM`)."""
 SWITCH_ON_US = (1700, 2100)
 
 
@@ -192,14 +191,16 @@ class VirtualFcSession:
         `port_base=None`: any free ports (see `VirtualFC`); `serial_update_rate_hz` None:
         the highest the FC allows (as `configure fsp`); `msp_baud` None: the MSP port's as
         it is (115200). `pilot`: a safety pilot's simulated radio is the receiver (`radio`),
-        else the OBC flies alone with `failsafe_procedure`. `arm_switch`: ARM on that AUX
-        channel (default: the radio's AUX1 with a pilot; none without, where the OBC arms
-        only through an ARM range on AUX3/AUX4). `control`: who flies as `configure fsp` is
-        told (default: from `pilot`, the switch AUX2 at 1700-2100). `configuration`: a
-        planner that configures the FC instead of `configure fsp` (a user's backup), with
-        FSP on UART`fsp_uart`."""
+        else the OBC flies alone with `failsafe_procedure` (and arms by arming requests:
+        `configure fsp` puts ARM on AUX1, which the FC holds). `arm_switch`: with a pilot,
+        ARM on that AUX channel of the radio (default AUX1). `control`: who flies as
+        `configure fsp` is told (default: from `pilot`, the switch AUX2 at 1700-2100).
+        `configuration`: a planner that configures the FC instead of `configure fsp` (a
+        user's backup), with FSP on UART`fsp_uart`."""
         if control is not None:
             pilot = isinstance(control, SafetyPilot)
+        if arm_switch is not None and not pilot:
+            raise ValueError("the OBC alone arms by arming requests: ARM is AUX1, the FC's")
         self.fc = VirtualFC(binary, workdir, port_base=port_base, board=board)
         self.msp_baud = msp_baud
         self.workdir = workdir
@@ -210,7 +211,7 @@ class VirtualFcSession:
         self.pilot = pilot
         self.cmd_timeout_ms = cmd_timeout_ms
         self.failsafe_procedure = failsafe_procedure
-        self.arm_switch = arm_switch if arm_switch is not None or not pilot else PILOT_ARM
+        self.arm_switch = (arm_switch or PILOT_ARM) if pilot else None
         self.control = control
         self.configuration = configuration
         self.fsp_uart = fsp_uart

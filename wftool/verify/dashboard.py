@@ -15,7 +15,7 @@ from rich.panel import Panel
 from rich.text import Text
 
 from wftool.display import printable
-from wftool.fsp import SensorFrame, UplinkFlag
+from wftool.fsp import SensorFrame, UplinkFlag, UplinkStatus
 from wftool.verify.criteria import Verdict
 from wftool.verify.monitor import OUTLIER, IntervalSummary, StreamSummary
 
@@ -162,8 +162,20 @@ UPLINK_FLAGS = (
     ("OBC receiver", UplinkFlag.OBC_RECEIVER, "yellow"),
     ("RX loss", UplinkFlag.RX_LOSS, "bold red"),
     ("armed", UplinkFlag.ARMED, "yellow"),
+    ("ARM switch held", UplinkFlag.ARM_SWITCH, "yellow"),
 )
 """The flags of an uplink status as the dashboard names them, and the style of each when on."""
+
+
+def who_flies(status: UplinkStatus) -> str:
+    """Who flies (spec §15) in words, and why the OBC last lost it; "not reported" by
+    firmware without the authority fields."""
+    if status.authority is None:
+        return "not reported by this firmware"
+    words = status.authority.name.lower()
+    if status.exit is not None and status.exit:
+        words += f" (last exit: {status.exit.name.lower().replace('_', ' ')})"
+    return words
 
 
 def _fc_uplink(summary: StreamSummary) -> Text | None:
@@ -189,6 +201,9 @@ def _fc_uplink(summary: StreamSummary) -> Text | None:
         text.append("–")
     phase = status.failsafe_phase_name
     text.append(f"   failsafe {phase}", style="" if status.failsafe_phase == 0 else "bold red")
+    if status.authority is not None:
+        text.append("\n  who flies: ")
+        text.append(who_flies(status), style="green" if status.steering else "")
     return text
 
 

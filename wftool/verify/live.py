@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from typing import Protocol
 
 from wftool.errors import ClockError, PortError, UsageError
-from wftool.fsp import CommandPacket, FspPort, StatePacket
+from wftool.fsp import ArmingAction, CommandPacket, FspPort, StatePacket
 from wftool.recording.events import Event, Sink
 from wftool.verify.monitor import HealthSampler, StreamMonitor, StreamSummary
 from wftool.verify.uplink import UplinkPattern
@@ -72,7 +72,8 @@ def check_uplink_lead(lead_s: float | None, name: str = "the uplink lead") -> fl
 class Commander(Protocol):
     """What decides the commands a live run sends (the uplink pattern, a ROS 2 node): the loop
     asks at `due` (math.inf: only when a read returns anyway) for `command(t)`, the command
-    to send at `t` (None: nothing), and tells `sent(t)` once the port took it."""
+    to send at `t` (None: nothing), tells `sent(t)` once the port took it, and then sends
+    the arming request (spec §14) `arming(t)` asks for with it, if any."""
 
     @property
     def due(self) -> float: ...
@@ -80,6 +81,8 @@ class Commander(Protocol):
     def command(self, t: float) -> Sequence[int] | None: ...
 
     def sent(self, t: float) -> None: ...
+
+    def arming(self, t: float) -> ArmingAction | None: ...
 
 
 def run_live(
@@ -213,6 +216,9 @@ class _LiveRun:
                     command = self._send(port, rc, t)
                     self._emit(Event("command", t, rc=rc), command)
                     commander.sent(t)
+                    action = commander.arming(t)
+                    if action is not None:
+                        port.send_arming(action, now=t)
         except PortError:
             self._drop(self._now())
         return t

@@ -269,6 +269,15 @@ def uplink_json(report: UplinkReport, age_s: float | None = None) -> dict:
         "timed_out_fc_time_us": status.timed_out_at_us,
         "obc_time": report.t,
         "timed_out_obc_time": report.timed_out_t,
+        "authority": None if status.authority is None else status.authority.name.lower(),
+        "exit": None if status.exit is None else status.exit.name.lower(),
+        "exit_fc_time_us": status.exit_at_us,
+        "exit_obc_time": report.exit_t,
+        "sender": status.sender,
+        "foreign": status.foreign,
+        "refused": status.refused,
+        "msp_rc_refused": status.msp_rc_refused,
+        "pulse_range_us": status.pulse_range,
         "age_s": age_s,
     }
 
@@ -279,8 +288,13 @@ def uplink_report(status: UplinkStatus, clock: ClockEstimator) -> UplinkReport:
     if t is None:
         assert status.arrival_time is not None, "a live or replayed status has its read's time"
         t = status.arrival_time
-    at = status.timed_out_at_us
-    return UplinkReport(status, t, clock.to_obc(at) if at is not None else None)
+    at, exit_at = status.timed_out_at_us, status.exit_at_us
+    return UplinkReport(
+        status,
+        t,
+        clock.to_obc(at) if at is not None else None,
+        clock.to_obc(exit_at) if exit_at is not None else None,
+    )
 
 
 def _finite_or_none(value: object) -> object:
@@ -405,7 +419,8 @@ class StreamMonitor:
         the FC's time reply with it). A replay has no packet: it is the one the live loop sent,
         from a port opened with the connection (seq counting from 0), stamped with `t`."""
         if self.uplink is not None:
-            self.uplink.sent(rc, t)
+            report = self.fc_uplink  # a pilot engages the OBC (spec §15): only then it echoes
+            self.uplink.sent(rc, t, report is None or report.status.steering is not False)
         if self._connected_at is None:
             return
         if command is None:
@@ -524,12 +539,13 @@ class HealthSampler:
 
 def _reports_a_change(new: UplinkReport | None, old: UplinkReport | None) -> bool:
     """Whether the FC's uplink status `new` says more than `old` did: it is the first, or
-    its flags or failsafe phase differ (its counters move with every command)."""
+    its flags, failsafe phase or who flies differ (its counters move with every command)."""
     if new is None or new is old:
         return False
     if old is None:
         return True
-    return (new.status.flags, new.status.failsafe_phase) != (
-        old.status.flags,
-        old.status.failsafe_phase,
-    )
+    return _what_it_says(new.status) != _what_it_says(old.status)
+
+
+def _what_it_says(status: UplinkStatus) -> tuple:
+    return (status.flags, status.failsafe_phase, status.authority, status.exit, status.exit_us)

@@ -60,6 +60,10 @@ class UplinkPattern:
         # A loop late by more than a period skips ahead: one command catches up, no burst.
         self.due = max(self.due + self.period, t - self.period)
 
+    def arming(self, t: float) -> None:
+        """The pattern never arms or disarms."""
+        return None
+
 
 @dataclass(frozen=True)
 class UplinkStats:
@@ -86,12 +90,21 @@ class UplinkTracker:
         self._echoed: set[int] = set()
         self._rtts: list[float] = []
         self._last_roll: int | None = None
+        self._last_sent: int | None = None
+        """The roll of the step being sent; None after a command that did not steer."""
 
-    def sent(self, rc: Sequence[int], t: float) -> None:
+    def sent(self, rc: Sequence[int], t: float, steering: bool = True) -> None:
+        """A command left at `t`; `steering`: the FC's newest status said the OBC's commands
+        steer (spec §15). One that does not steer is no step to echo (a pilot flies), and
+        the next one that does starts a step of its own."""
         self._commands += 1
+        if not steering:
+            self._last_sent = None
+            return
         roll = rc[0]
-        if not self._steps or self._steps[-1][0] != roll:
+        if self._last_sent != roll:
             self._steps.append((roll, t))
+            self._last_sent = roll
 
     def observe(self, packet: StatePacket, t: float) -> None:
         for frame in packet.frames:

@@ -5,7 +5,8 @@ first on PYTHONPATH (these tests' helpers from this checkout):
 `python tests/recording/data/make_recordings.py tests/recording/data NAME...`. RECORDINGS:
 3cce0e6, one ROS 2 `StreamEvent` message per event, in the chunks of the frames;
 UPLINK_RECORDING: e1f7f62, before the FC's uplink statuses had a topic of their own, of an
-FC that sends them.
+FC that sends them; STATUS_V1_RECORDING: 301153b, the `UplinkStatus` message before it said
+who flies (spec §15), of an FC that sends 36-byte statuses.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from wftool.verify.monitor import HealthSampler, StreamMonitor
 
 RECORDINGS = {"ros2-streamevent.mcap": "ros2", "json.mcap": "json"}
 UPLINK_RECORDING = "ros2-no-uplink-topic.mcap"
+STATUS_V1_RECORDING = "ros2-uplink-status-before-authority.mcap"
 PORT = "socket://sim:5762"
 
 
@@ -70,7 +72,8 @@ def main(directory: Path, names: list[str]) -> None:
     for name in names:
         record_format = RECORDINGS.get(name, "ros2")
         with Recorder(directory / name, None, metadata, record_format=record_format) as recorder:
-            run(recorder, uplink_events if name == UPLINK_RECORDING else events)
+            uplink = name in (UPLINK_RECORDING, STATUS_V1_RECORDING)
+            run(recorder, uplink_events if uplink else events)
 
 
 if __name__ == "__main__":
