@@ -45,6 +45,7 @@ class FspStandIn:
         self._start = time.monotonic()
         self._thread = threading.Thread(target=self._serve, daemon=True)
         self._connection: socket.socket | None = None
+        self._pause_s = 0.0
 
     def __enter__(self) -> FspStandIn:
         self._thread.start()
@@ -62,6 +63,11 @@ class FspStandIn:
         """Close the client's connection and stop serving (a port that vanished)."""
         self._stop.set()
         self._thread.join(5)
+
+    def pause(self, seconds: float) -> None:
+        """Read nothing for `seconds` once (a link or an FC that stalls)."""
+        with self._lock:
+            self._pause_s = seconds
 
     def now_us(self) -> int:
         return int((time.monotonic() - self._start) * 1e6)
@@ -92,6 +98,9 @@ class FspStandIn:
         """Stream to `connection` until it closes (True) or the stand-in stops (False)."""
         seq = 0
         while not self._stop.is_set():
+            with self._lock:
+                pause, self._pause_s = self._pause_s, 0.0
+            time.sleep(pause)
             try:
                 data = connection.recv(1 << 16)
                 if not data:

@@ -174,9 +174,23 @@ def test_a_stall_of_its_own_thread_is_recorded(fc: FspStandIn) -> None:
     with Obc(fc.url, guard=guard) as obc:
         obc.behave("fresh", COMMAND)
         stall = obc.stalls.wait(lambda gap: True, 0, 5.0)
-        assert stall is not None and stall >= 0.06
+        assert stall is not None and stall >= 0.06  # written late, and so taken late
         obc.behave("stopped")
+        stalls = obc.stalls.end
         time.sleep(0.1)
         obc.behave("fresh", COMMAND)  # a pause it meant is no stall
         until(lambda: len(fc.commands) >= 15)
+        assert obc.stalls.end == stalls
+
+
+def test_commands_the_fc_took_late_are_a_stall_too(fc: FspStandIn) -> None:
+    """Written on time, taken late (the FC's time replies): the link stalled."""
+    with Obc(fc.url) as obc:
+        obc.behave("fresh", COMMAND)
+        until(lambda: len(fc.commands) >= 3)
+        fc.pause(0.08)
+        stall = obc.stalls.wait(lambda gap: True, 0, 5.0)
+        assert stall is not None and stall >= 0.07
+        obc.restart(COMMAND)  # a new program: its link starts anew, no stall
+        until(lambda: len(fc.commands) >= 20)
         assert obc.stalls.end == 1

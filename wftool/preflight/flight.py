@@ -190,6 +190,19 @@ class Flight:
             return False
         return True
 
+    def said(self, seen: Sequence[Snapshot], statuses: int) -> str:
+        """What MSP showed in `seen` (the first and last, host seconds apart), and what the
+        FC's uplink statuses from index `statuses` on said: for a failed line's reader."""
+        sticks = sorted({s.sticks for s in seen})[:3]
+        span = f"{1e3 * (seen[-1].t - seen[0].t):.0f} ms" if seen else "-"
+        flags = {
+            f"{s.authority.name.lower() if s.authority else '?'}"
+            f"/{s.exit.name.lower() if s.exit else '?'}"
+            f"{'+rx_loss' if s.has(UplinkFlag.RX_LOSS) else ''}"
+            for s in self.obc.statuses.since(statuses)
+        }
+        return f"over {span}: sticks {sticks}; the FC said {sorted(flags)}"
+
     def fail(self, name: str, wanted: str) -> Line:
         """A failed line: what the FC's uplink status says instead of `wanted`."""
         status = self.obc.status
@@ -213,6 +226,11 @@ class Flight:
         if self.arming_failed:
             self.report.not_checked(what, "the FC could not be armed (above)")
             return False
+        status = self.obc.status
+        held = status is not None and status.has(UplinkFlag.ARM_SWITCH)
+        if self.alone and self.authority and held:  # on since Betaflight disarmed: off first
+            self.obc.request_arming(ArmingAction.DISARM)
+            self.obc.next_status(lambda s: not s.has(UplinkFlag.ARM_SWITCH), WAIT_S)
         ready = self.watcher.wait(lambda s: s.can_arm, time.monotonic(), 15.0)
         if ready is None:
             flags = self.watcher.latest().status.arming_disabled
@@ -223,10 +241,6 @@ class Flight:
         if not self.alone:
             self.pilot.hold(armed=True)
         elif self.authority:
-            status = self.obc.status
-            if status is not None and status.has(UplinkFlag.ARM_SWITCH):  # on since a disarm
-                self.obc.request_arming(ArmingAction.DISARM)
-                self.obc.next_status(lambda s: not s.has(UplinkFlag.ARM_SWITCH), WAIT_S)
             self.obc.request_arming(ArmingAction.ARM)
         else:
             self.obc.behave("fresh", self.command())

@@ -41,9 +41,10 @@ from wftool.preflight.record import Record
 R = TypeVar("R")
 COMMAND_RATE_HZ = 100.0
 """How often the OBC commands: several commands per timeout (spec §11)."""
-STALL_S = 0.025
-"""A stall of the OBC's own thread: half the default command timeout without a fresh command
-while it meant to send them (`Obc.stall_s`; the FC's timeout halved once it is known)."""
+STALL_FRACTION = 0.7
+"""A stall of the OBC's own thread: this much of the FC's command timeout without a fresh
+command while it meant to send them — the FC may have counted it gone (`Obc.stall_s`)."""
+STALL_S = STALL_FRACTION * 0.05
 REPLY_WAIT_S = 0.02
 """How long a killed OBC waits for the FC's answer to its last command before its port
 closes (the FC answers within a task period or two when `fsp_time_reply` is ON)."""
@@ -117,9 +118,12 @@ class Obc:
         self.stall_s = STALL_S
         """A gap between two fresh commands longer than this is a stall of this program."""
         self.stalls: Record[float] = Record(4096)
-        """The stalls, each the gap (s) between two fresh commands in a row: this program (the
-        host) was late, and what the FC did meanwhile is no evidence about the FC."""
+        """The stalls, each the gap (s) between two fresh commands in a row as they were
+        written, or as the FC took them (their time replies, FC clock): this program, its host
+        or the link was late, and what the FC did meanwhile is no evidence about the FC."""
         self._steady = False
+        self._taken_us: int | None = None
+        """FC time the latest fresh command of the steady run was taken."""
         self._fresh: deque[Sent] = deque(maxlen=50)
         self._port: Port | None = None
         self._fd: int | None = None
@@ -201,6 +205,7 @@ class Obc:
 
         def restarted() -> Sent | None:
             last = self.last_fresh
+            self._taken_us = None  # the new program's link starts anew
             self.sender = self._new_sender()
             self._mode, self._rc = "fresh", tuple(rc)
             return last
@@ -226,6 +231,7 @@ class Obc:
         which carries `rc` (default: as before); the last fresh command stamped before."""
 
         def stepped() -> Sent | None:
+            self._taken_us = None  # a new link (spec §11)
             self._clock_offset += seconds
             if rc is not None:
                 self._rc = tuple(rc)
@@ -374,6 +380,8 @@ class Obc:
             twin, rc = self._twin
             self._write(encode_command(twin.next(rc, self.clock())))
         self._steady = mode == "fresh"
+        if not self._steady:
+            self._taken_us = None
 
     def _send(self, packet: CommandPacket, stamp: float) -> Sent:
         wire = encode_command(packet)
@@ -416,6 +424,12 @@ class Obc:
 
     def _answered(self, trip: RoundTrip) -> None:
         self.trips.add(trip)
+        if self._steady:
+            if self._taken_us is not None:
+                gap = (trip.fc_received_us - self._taken_us) / 1e6
+                if gap > self.stall_s:
+                    self.stalls.add(gap)
+            self._taken_us = trip.fc_received_us
 
     def _taken(self, sent: Sent) -> int | None:
         with self.trips.changed:

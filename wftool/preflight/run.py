@@ -15,7 +15,7 @@ from wftool.fc.modes import MODE_ARM
 from wftool.fc.msp import MspClient
 from wftool.fsp.reader import DEFAULT_BAUDRATE
 from wftool.preflight.flight import LIMIT_MS, Flight
-from wftool.preflight.obc import README_COMMAND, Obc
+from wftool.preflight.obc import README_COMMAND, STALL_FRACTION, Obc
 from wftool.preflight.pilot import NoPilot, Pilot
 from wftool.preflight.report import Report
 from wftool.preflight.scenarios import Scenario, scenarios_for
@@ -25,7 +25,8 @@ from wftool.progress import Log, quiet
 
 FIRST_STATUS_S = 1.0
 TRIES = 3
-"""A scenario during which wftool's own OBC stalled is played again, up to this often."""
+"""A scenario during which wftool's own OBC's commands came late (its host or the link
+stalled) is played again, up to this often."""
 """How long the FC may take to answer a first packet with an uplink status (E3)."""
 
 
@@ -190,12 +191,15 @@ class Preflight:
                     break
                 del report.lines[lines:]  # this program was late: no evidence of the FC's
                 stalls += stall
-                self.log(f"{scenario.title}: wftool's OBC stalled {max(stall) * 1e3:.0f} ms")
+                self.log(
+                    f"{scenario.title}: the OBC's commands came {max(stall) * 1e3:.0f} ms apart "
+                    "(its host or the link stalled): played again"
+                )
             else:
                 report.not_checked(
                     scenario.title,
-                    f"wftool's own OBC stalled (up to {max(stalls) * 1e3:.0f} ms between fresh "
-                    f"commands) in each of {TRIES} tries: a loaded host",
+                    f"wftool's OBC's commands came late (up to {max(stalls) * 1e3:.0f} ms apart) "
+                    f"in each of {TRIES} tries: its host or the link stalled",
                 )
 
     def _first_status(self, flight: Flight) -> None:
@@ -206,7 +210,7 @@ class Preflight:
         flight.obc.send_once(README_COMMAND)
         status = flight.obc.statuses.wait(lambda s: True, start, FIRST_STATUS_S)
         if status is not None:
-            flight.obc.stall_s = status.timeout_ms / 2000
+            flight.obc.stall_s = STALL_FRACTION * status.timeout_ms / 1000
         if status is None:
             report.check(
                 "the FC reports on the uplink (E3 uplink status)",

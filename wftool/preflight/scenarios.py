@@ -285,6 +285,7 @@ def twin(flight: Flight) -> None:
     other = (*(v + 90 for v in command[:3]), command[3] + 40, *command[4:])
     before = flight.obc.status
     frames = flight.obc.frames.end
+    statuses = flight.obc.statuses.end
     start = time.monotonic()
     flight.obc.twin(other)
     time.sleep(1.0)
@@ -315,7 +316,9 @@ def twin(flight: Flight) -> None:
         flight.report.check(
             f"{title}: the first flies on",
             not lost,
-            f"{len(lost)} of {len(seen)} MSP replies not its sticks" if lost else "yes",
+            f"{len(lost)} of {len(seen)} MSP replies not its sticks ({flight.said(lost, statuses)})"
+            if lost
+            else "yes",
             "yes",
         )
     else:
@@ -338,8 +341,6 @@ def clock_step(flight: Flight) -> None:
     command = flight.command()
     stepped = (command[0] + 50, *command[1:])
     statuses = flight.obc.statuses.end
-    latest = flight.obc.status
-    exited = latest.exit_at_us or 0 if latest is not None else 0
     last = flight.obc.step_clock(STEP_BACK_S, stepped)
     taken = flight.obc.taken_us(last)
     again = None
@@ -357,16 +358,10 @@ def clock_step(flight: Flight) -> None:
         )
         if steers is not None and last is not None:
             lost = [s for s in flight.watcher.since(last.written) if s.rx_loss]
-            exits = {
-                s.exit.name.lower()
-                for s in flight.obc.statuses.since(statuses)
-                if s.exit is not None and s.exit_at_us is not None and s.exit_at_us > exited
-            }
             flight.report.check(
                 f"{title}: no RXLOSS",
                 not lost,
-                f"{len(lost)} MSP replies RXLOSS, from {1e3 * (lost[0].t - last.written):.0f} to "
-                f"{1e3 * (lost[-1].t - last.written):.0f} ms; exits {sorted(exits)}"
+                f"{len(lost)} MSP replies RXLOSS ({flight.said(lost, statuses)})"
                 if lost
                 else "none",
                 "none",
