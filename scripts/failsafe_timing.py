@@ -21,7 +21,7 @@ from pathlib import Path
 from wftool.fc.fsp_setup import ObcOnly, SafetyPilot
 from wftool.preflight.report import Line, Report
 from wftool.preflight.scenarios import BY_KEY
-from wftool.preflight.virtual import preflight_virtual_fc
+from wftool.preflight.virtual import on_virtual_fc
 
 SETUPS = {"pilot": SafetyPilot(), "alone": ObcOnly("drop")}
 
@@ -56,7 +56,7 @@ def main() -> None:
     args = parser.parse_args()
     rows = []
     for setup in args.setup or list(SETUPS):
-        report = preflight_virtual_fc(
+        with on_virtual_fc(
             args.binary,
             control=SETUPS[setup],
             cmd_timeout_ms=args.cmd_timeout_ms,
@@ -65,8 +65,8 @@ def main() -> None:
             only=args.scenario,
             trials=args.trials,
             log=print,
-        )
-        rows += table(setup, report)
+        ) as preflight:
+            rows += table(setup, preflight.run())
     print(f"\nfsp_cmd_timeout_ms {args.cmd_timeout_ms}, {args.trials} trials each (virtual FC)")
     print("| set-up | line | min / median / max | clock | passed |")
     print("|---|---|---|---|---|")

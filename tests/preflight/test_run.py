@@ -166,4 +166,4 @@ def test_a_scenario_the_obc_stalled_in_is_played_again_or_not_checked() -> None:
     run.play(flight, Scenario("y", "another", (PILOT,), lambda f: stalls.add(0.08)))  # type: ignore[arg-type]
     unchecked = flight.report.lines[-1]
     assert unchecked.name == "another" and not unchecked.passed
-    assert unchecked.measured.startswith("wftool's OBC's commands came late (up to 80 ms apart)")
+    assert unchecked.measured.startswith("the OBC's commands came late (up to 80 ms apart)")

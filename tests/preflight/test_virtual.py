@@ -15,7 +15,7 @@ from wftool.fc.cli_session import CliSession
 from wftool.fc.fsp_setup import ObcOnly, SafetyPilot
 from wftool.fc.msp import FEATURE_RX_UDP
 from wftool.fc.params import take_backup
-from wftool.preflight.virtual import load_backup, preflight_virtual_fc
+from wftool.preflight.virtual import load_backup, on_virtual_fc
 from wftool.sitl.session import VirtualFcSession
 
 BOARD_LINES = """\
@@ -89,9 +89,10 @@ def settings_failed(binary: Path, text: str, tmp_path: Path) -> dict[str, str]:
     """The failed lines of the settings of the configuration `text`: name → measured."""
     path = tmp_path / "config.txt"
     path.write_text(text)
-    report = preflight_virtual_fc(
+    with on_virtual_fc(
         binary, backup=load_backup(path), port_base=None, settings_only=True, workdir=tmp_path
-    )
+    ) as preflight:
+        report = preflight.run()
     assert report.unchecked  # the scenarios: not checked, saying so
     return {line.name: line.measured for line in report.failed}
 

@@ -26,7 +26,7 @@ from wftool.fsp.framing import STATE_VERSIONS, Deframer, Rejection
 from wftool.fsp.reader import FspPort
 from wftool.preflight.flight import Flight
 from wftool.preflight.report import Report
-from wftool.preflight.run import Preflight
+from wftool.preflight.run import STALLED, Preflight
 from wftool.preflight.scenarios import ALONE, BY_KEY, PILOT, SCENARIOS
 from wftool.preflight.virtual import on_virtual_fc
 from wftool.sitl.session import VirtualFcSession
@@ -65,6 +65,8 @@ def _passes(flown: Flown, key: str) -> None:
     run.play(flight, BY_KEY[key])
     lines = flight.report.lines
     assert lines, f"{key}: no lines"
+    if stalled := [line for line in lines if line.measured.startswith(STALLED)]:
+        pytest.skip(f"{stalled[0].name}: {stalled[0].measured}")
     failed = [f"{line.name}: {line.measured} ({line.limit})" for line in lines if not line.passed]
     assert not failed, failed
 

@@ -158,7 +158,7 @@ def _on_sitl(
     procedure: str | None, switch: str, on_range: str, cmd_timeout_ms: int, limit_ms: float,
     arm: bool, settings_only: bool, only: tuple[str, ...] | None,
 ) -> Report:  # fmt: skip
-    from wftool.preflight.virtual import load_backup, preflight_virtual_fc
+    from wftool.preflight.virtual import load_backup, on_virtual_fc
 
     source = click.get_current_context().get_parameter_source
     backup = None
@@ -182,11 +182,12 @@ def _on_sitl(
         procedure = procedure or ("drop" if obc_only else None)
         control = _control(obc_only, procedure, switch, on_range)
     binary = binary or build_sitl(None)
-    return preflight_virtual_fc(
+    with on_virtual_fc(
         binary, control=control, cmd_timeout_ms=cmd_timeout_ms, backup=backup,
         port_base=port_base or None, limit_ms=limit_ms, arm=arm, settings_only=settings_only,
         only=only, log=log,
-    )  # fmt: skip
+    ) as preflight:  # fmt: skip
+        return preflight.run()
 
 
 def _print(report: Report) -> None:

@@ -41,7 +41,7 @@ from wftool.preflight.record import Record
 R = TypeVar("R")
 COMMAND_RATE_HZ = 100.0
 """How often the OBC commands: several commands per timeout (spec §11)."""
-STALL_FRACTION = 0.7
+STALL_FRACTION = 0.8
 """A stall of the OBC's own thread: this much of the FC's command timeout without a fresh
 command while it meant to send them — the FC may have counted it gone (`Obc.stall_s`)."""
 STALL_S = STALL_FRACTION * 0.05

@@ -24,9 +24,11 @@ from wftool.preflight.watcher import FcWatcher, Snapshot
 from wftool.progress import Log, quiet
 
 FIRST_STATUS_S = 1.0
-TRIES = 3
+TRIES = 5
 """A scenario during which wftool's own OBC's commands came late (its host or the link
 stalled) is played again, up to this often."""
+STALLED = "the OBC's commands came late"
+"""How the line of a scenario not checked for that begins."""
 """How long the FC may take to answer a first packet with an uplink status (E3)."""
 
 
@@ -198,8 +200,8 @@ class Preflight:
             else:
                 report.not_checked(
                     scenario.title,
-                    f"wftool's OBC's commands came late (up to {max(stalls) * 1e3:.0f} ms apart) "
-                    f"in each of {TRIES} tries: its host or the link stalled",
+                    f"{STALLED} (up to {max(stalls) * 1e3:.0f} ms apart) in each of {TRIES} "
+                    "tries: wftool's host or the link stalled",
                 )
 
     def _first_status(self, flight: Flight) -> None:

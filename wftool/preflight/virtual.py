@@ -7,11 +7,10 @@ from __future__ import annotations
 
 import contextlib
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
 from functools import partial
 from pathlib import Path
-from typing import Any
 
 from wftool.errors import CliCommandError, UsageError
 from wftool.fc.cli_session import CliSession
@@ -25,8 +24,8 @@ from wftool.fc.fsp_setup import (
 )
 from wftool.fc.msp import FEATURE_RX_MSP, FEATURE_RX_UDP, RECEIVER_FEATURES
 from wftool.fc.params import Command, FeatureChange, Plan, Planner, plan_from_file, set_command
+from wftool.preflight.flight import LIMIT_MS
 from wftool.preflight.pilot import NoPilot, Pilot, RadioPilot
-from wftool.preflight.report import Report
 from wftool.preflight.run import Preflight
 from wftool.preflight.settings import BoardSettings
 from wftool.progress import Log, quiet
@@ -142,12 +141,16 @@ def on_virtual_fc(
     port_base: int | None = DEFAULT_PORT_BASE,
     workdir: Path | None = None,
     log: Log = quiet,
-    **options: Any,
+    limit_ms: float = LIMIT_MS,
+    arm: bool = False,
+    settings_only: bool = False,
+    only: Sequence[str] | None = None,
+    trials: int = 1,
 ) -> Iterator[Preflight]:
-    """A preflight (`options`: `Preflight`'s) on a virtual FC configured by `configure fsp`
-    (`control`, `cmd_timeout_ms`) or with `backup`, whose report's header says which; the FC
-    runs until the block ends. `control` None: a safety pilot, the switch AUX2 on at
-    1700-2100 µs (`configure fsp`'s defaults)."""
+    """A preflight (`limit_ms` to `trials`: `Preflight`'s) on a virtual FC configured by
+    `configure fsp` (`control`, `cmd_timeout_ms`) or with `backup`, whose report's header
+    says which; the FC runs until the block ends. `control` None: a safety pilot, the switch
+    AUX2 on at 1700-2100 µs (`configure fsp`'s defaults)."""
     control = control or SafetyPilot()
     workdir = workdir or Path(tempfile.mkdtemp(prefix="wftool-preflight-"))
     if backup is not None:
@@ -178,14 +181,9 @@ def on_virtual_fc(
         lines.append(f"for the virtual FC: {', '.join(virtual)}")
         yield Preflight(
             session.fc, session.fsp_url, partial(_pilot, session.radio), subject=lines, log=log,
-            closing=partial(session.fc.close_client, session.fsp_uart), **options,
+            closing=partial(session.fc.close_client, session.fsp_uart), limit_ms=limit_ms,
+            arm=arm, settings_only=settings_only, only=only, trials=trials,
         )  # fmt: skip
-
-
-def preflight_virtual_fc(binary: Path, **options: Any) -> Report:
-    """The report of a preflight on a virtual FC (`on_virtual_fc`'s `options`)."""
-    with on_virtual_fc(binary, **options) as preflight:
-        return preflight.run()
 
 
 def _pilot(radio: SimulatedRadio | None, settings: BoardSettings) -> Pilot:
