@@ -35,6 +35,9 @@ LINK_UP_S = 10.0
 not a limit)."""
 STEADY_S = 0.3
 """How long the OBC steers before a scenario makes it fail: the FC in a steady state."""
+MSP_STALL_S = 0.02
+"""An MSP reply that took longer than this (the FC answers within a serial task period or
+two) says the host, or the virtual FC, stalled: host-clock timings around it are void."""
 TOLERANCE_US = 10
 """A stick within this of the pilot's value is the pilot's (a real radio's values jitter)."""
 FC_CLOCK = "FC clock"
@@ -291,12 +294,46 @@ class Flight:
         ms: float | None = None
         clock = HOST_CLOCK
         if seen is not None:
-            ms = 1e3 * (seen.t - since)
             fc = self.fc_ms(last, frame=frame, status=status) if by_fc else None
-            if fc is not None:
-                ms, clock = fc, FC_CLOCK
-        self.report.timing(f"{name}", ms, limit, clock)
+            ms, clock = (fc, FC_CLOCK) if fc is not None else (self.host_ms(since, seen), clock)
+        self.report.timing(name, ms, limit, clock)
         return seen
+
+    def flip(self, name: str, on: bool, sticks: Callable[[tuple[int, ...]], bool]) -> None:
+        """A line timing the pilot's switch turned `on` (or off) to the sticks showing what
+        `sticks` asks: by the FC clock, from the uplink status the change of the switch
+        brought (written in the FSP task run of the change) to the first frame; else from the
+        move (a person: the MSP reply that showed the switch) to the MSP reply."""
+        statuses = self.obc.statuses.end
+        switched = time.monotonic()
+        self.pilot.hold(override=on)
+        seen = self.watcher.wait(lambda s: sticks(s.sticks), switched, WAIT_S)
+        ms, clock = None, HOST_CLOCK
+        if seen is not None:
+            said = self.obc.statuses.wait(
+                lambda s: s.has(UplinkFlag.OVERRIDE) == on, statuses, WAIT_S
+            )
+            frame = None
+            if said is not None and said.sent_us is not None:
+                frame = self.obc.frame_after(said.sent_us, lambda f: sticks(f.sticks), WAIT_S)
+            if frame is not None and said is not None and said.sent_us is not None:
+                ms, clock = (frame.fc_us - said.sent_us) / 1000, FC_CLOCK
+            else:
+                moved = self.watcher.wait(lambda s: s.override == on, switched, WAIT_S)
+                start = switched if self.pilot.simulated or moved is None else moved.t
+                ms = self.host_ms(start, seen)
+        self.report.timing(name, ms, self.limit_ms, clock)
+
+    def host_ms(self, since: float, seen: Snapshot) -> float:
+        """Host milliseconds from `since` to the MSP reply `seen`: an upper bound of how long
+        the FC took, good only while the FC answered MSP promptly. A reply in between that
+        took longer than `MSP_STALL_S` says the host (or the virtual FC) stalled: the
+        measurement is then no evidence, recorded as a stall (`Obc.stalls`)."""
+        replies = [s for s in self.watcher.since(since) if s.t <= seen.t]
+        slowest = max((s.t - s.asked for s in replies), default=0.0)
+        if slowest > MSP_STALL_S:
+            self.obc.stalls.add(slowest)
+        return 1e3 * (seen.t - since)
 
     def fc_ms(
         self,
@@ -317,6 +354,24 @@ class Flight:
             said = self.obc.status_after(taken, status, WAIT_S)
             return None if said is None or said.sent_us is None else (said.sent_us - taken) / 1000
         return None
+
+    def back_to_pilot(
+        self, title: str, last: Sent | None, *, by_fc: bool = True, stays_s: float = HOLD_S
+    ) -> Line | None:
+        """Lines: the pilot's sticks back within the limit after the OBC's `last` fresh
+        command (`timed`), and then staying the pilot's for `stays_s` (`holds`), which is
+        the line returned (None: the sticks never came back)."""
+        pilot = self.pilot_rc[:STICKS]
+        back = self.timed(
+            f"{title}: the pilot's sticks back",
+            last,
+            lambda s: near(s.sticks, pilot),
+            frame=lambda f: near(f.sticks, pilot),
+            by_fc=by_fc,
+        )
+        if back is None:
+            return None
+        return self.holds(f"{title}: it stays with the pilot", back.t, pilot, stays_s)
 
     def holds(
         self, name: str, since: float, wanted: Sequence[int], seconds: float = HOLD_S

@@ -91,16 +91,7 @@ def _failure(key: str) -> Callable[[Flight], None]:
                 f"{title}: still RXLOSS after {HOLD_S:g} s", still, "yes" if still else "no", "yes"
             )
         else:
-            pilot = flight.pilot_rc[:STICKS]
-            back = flight.timed(
-                f"{title}: the pilot's sticks back",
-                last,
-                lambda s: near(s.sticks, pilot),
-                frame=lambda f: near(f.sticks, pilot),
-                by_fc=by_fc,
-            )
-            if back is not None:
-                flight.holds(title, back.t, pilot)
+            flight.back_to_pilot(title, last, by_fc=by_fc)
         flight.obc.behave("stopped")
 
     return run
@@ -157,23 +148,9 @@ def reengage(flight: Flight) -> None:
     if flight.authority and flight.wait_authority(Authority.READY, PROOF_WAIT_S, statuses) is None:
         flight.fail(f"{title}: a live OBC becomes ready", "ready")
         return
-    statuses = flight.obc.statuses.end
-    switched = time.monotonic()
-    flight.pilot.hold(override=True)
-    steers = flight.watcher.wait(lambda s: near(s.sticks, command[:STICKS]), switched, WAIT_S)
-    ms, clock = None, HOST_CLOCK
-    if steers is not None:
-        on = flight.watcher.wait(lambda s: s.override, switched, WAIT_S)
-        ms = 1e3 * (steers.t - (switched if flight.pilot.simulated or on is None else on.t))
-        said = flight.obc.statuses.wait(lambda s: s.has(UplinkFlag.OVERRIDE), statuses, WAIT_S)
-        if said is not None and said.sent_us is not None:
-            frame = flight.obc.frame_after(
-                said.sent_us, lambda f: near(f.sticks, command[:STICKS]), WAIT_S
-            )
-            if frame is not None:
-                ms, clock = (frame.fc_us - said.sent_us) / 1000, FC_CLOCK
-    flight.report.timing(f"{title}: the switch on to the OBC steering", ms,
-                         flight.limit_ms, clock)  # fmt: skip
+    flight.flip(
+        f"{title}: the switch on to the OBC steering", True, lambda rc: near(rc, command[:STICKS])
+    )
     flight.obc.behave("stopped")
 
 
@@ -183,20 +160,11 @@ def restart_piloted(flight: Flight) -> None:
     title = "OBC restarts (a new sender)"
     if not flight.take_over(title):
         return
-    pilot = flight.pilot_rc[:STICKS]
     restarted = flight.command((*tuple(v - 100 for v in flight.command()[:3]), 1050))
     statuses = flight.obc.statuses.end
     last = flight.obc.restart(restarted)
-    back = flight.timed(
-        f"{title}: the pilot's sticks back",
-        last,
-        lambda s: near(s.sticks, pilot),
-        frame=lambda f: near(f.sticks, pilot),
-    )
-    if back is None:
-        return
-    line = flight.holds(f"{title}: it stays with the pilot", back.t, pilot, STAYS_S)
-    if line.passed and flight.engage(title, statuses):
+    line = flight.back_to_pilot(title, last, stays_s=STAYS_S)
+    if line is not None and line.passed and flight.engage(title, statuses):
         steers = flight.watcher.wait(
             lambda s: near(s.sticks, restarted[:STICKS]), time.monotonic(), WAIT_S
         )
@@ -215,20 +183,7 @@ def switch_off(flight: Flight) -> None:
     if not flight.take_over(title):
         return
     pilot = flight.pilot_rc[:STICKS]
-    statuses = flight.obc.statuses.end
-    switched = time.monotonic()
-    flight.pilot.hold(override=False)
-    back = flight.watcher.wait(lambda s: near(s.sticks, pilot), switched, WAIT_S)
-    ms, clock = None, HOST_CLOCK
-    if back is not None:
-        off = flight.watcher.wait(lambda s: not s.override, switched, WAIT_S)
-        ms = 1e3 * (back.t - (switched if flight.pilot.simulated or off is None else off.t))
-        said = flight.obc.statuses.wait(lambda s: not s.has(UplinkFlag.OVERRIDE), statuses, WAIT_S)
-        if said is not None and said.sent_us is not None:
-            frame = flight.obc.frame_after(said.sent_us, lambda f: near(f.sticks, pilot), WAIT_S)
-            if frame is not None:
-                ms, clock = (frame.fc_us - said.sent_us) / 1000, FC_CLOCK
-    flight.report.timing(f"{title}", ms, flight.limit_ms, clock)
+    flight.flip(title, False, lambda rc: near(rc, pilot))
     flight.obc.behave("stopped")
 
 
@@ -246,7 +201,7 @@ def radio_lost(flight: Flight) -> None:
     try:
         lost = flight.watcher.wait(lambda s: s.rx_loss, switched, WAIT_S)
         if flight.pilot.simulated:
-            ms = None if lost is None else 1e3 * (lost.t - switched)
+            ms = None if lost is None else flight.host_ms(switched, lost)
             flight.report.timing(f"{title}: RXLOSS", ms, RX_LOSS_MS + flight.limit_ms, HOST_CLOCK)
         else:
             flight.report.check(
@@ -367,15 +322,7 @@ def clock_step(flight: Flight) -> None:
                 "none",
             )
     else:
-        pilot = flight.pilot_rc[:STICKS]
-        back = flight.timed(
-            f"{title}: the pilot's sticks back",
-            last,
-            lambda s: near(s.sticks, pilot),
-            frame=lambda f: near(f.sticks, pilot),
-        )
-        if back is not None:
-            flight.holds(f"{title}: it stays with the pilot", back.t, pilot, STAYS_S)
+        flight.back_to_pilot(title, last, stays_s=STAYS_S)
     flight.report.check(
         f"{title}: its commands taken again",
         again is not None,
@@ -433,7 +380,7 @@ def out_of_range(flight: Flight) -> None:
     else:
         pilot = flight.pilot_rc[:STICKS]
         back = flight.watcher.wait(lambda s: near(s.sticks, pilot), sent.written, WAIT_S)
-        ms = None if back is None else 1e3 * (back.t - sent.written)
+        ms = None if back is None else flight.host_ms(sent.written, back)
         flight.report.timing(f"{title}: the pilot's sticks back", ms, flight.limit_ms, HOST_CLOCK)
     flight.obc.behave("stopped")
 
@@ -536,13 +483,11 @@ def stage2(flight: Flight) -> None:
     seen = flight.watcher.wait(lambda s: s.failsafe or not s.armed, since, delay / 1000 + WAIT_S)
     ms, clock = None, HOST_CLOCK
     if seen is not None:
-        ms = 1e3 * (seen.t - since)
         fc = flight.fc_ms(
             last,
             status=lambda s: not s.has(UplinkFlag.ARMED) or s.failsafe_phase >= FAILSAFE_LANDING,
         )
-        if fc is not None:
-            ms, clock = fc, FC_CLOCK
+        ms, clock = (fc, FC_CLOCK) if fc is not None else (flight.host_ms(since, seen), clock)
     flight.report.check(
         f"{title}: failsafe stage 2 (failsafe_delay {delay} ms)",
         ms is not None and delay <= ms <= delay + flight.limit_ms,
