@@ -126,6 +126,28 @@ def test_configure_fsp_keeps_a_safety_pilot_unless_told(
     assert _eeprom(on_sitl) == eeprom
 
 
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        (("--override-range", "1000-2000"),
+         "error: the override range 1000-2000 has no off position: a switch's low end (up to "
+         "1100 µs) lies in it, so the OBC would fly with the switch off — start it above that, "
+         "e.g. 1700-2100\n"),
+        (("--override-range", "900-2100"), "error: the override range 900-2100 has no off"),
+        (("--baud", "3000000"), "error: --baud: the FC takes no baud rate 3000000 for a port: "
+         "one of 9600, 19200,"),
+    ],
+)  # fmt: skip
+def test_configure_fsp_refuses_a_switch_without_off_or_a_baud_the_fc_lacks_before_the_fc(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path, options: tuple[str, ...], message: str
+) -> None:
+    """One line, exit 2, and no FC touched (no port given, no backup taken)."""
+    args = ("--uart", "2", "--baud", "2000000", *options, "--backup-dir", str(tmp_path / "b"))
+    code, _, err = run(capsys, "configure", "fsp", *args, "--port", "/dev/wftool-no-such-tty")
+    assert code == 2 and err.startswith(message) and err.count("\n") == 1
+    assert not (tmp_path / "b").exists()
+
+
 @pytest.mark.parametrize("fields", [6, 8])
 def test_a_serial_line_of_another_shape_is_refused_and_changes_nothing(
     on_sitl: VirtualFC,

@@ -12,10 +12,12 @@ from tests.conftest import fc_settings
 from wftool.errors import ParameterError
 from wftool.fc.cli_session import CliSession
 from wftool.fc.fsp_setup import (
+    BAUD_RATES,
     FSP_FUNCTION,
     ObcOnly,
     SafetyPilot,
     SerialPortConfig,
+    check_baud,
     failsafe_outlook,
     fsp_planner,
     function_names,
@@ -170,12 +172,60 @@ def test_the_override_switch_is_not_the_arm_switch(virtual_fc: VirtualFC, tmp_pa
     assert _eeprom(virtual_fc) == eeprom
 
 
-def test_obc_alone_refuses_modes_on_aux1_aux2(virtual_fc: VirtualFC, tmp_path: Path) -> None:
-    apply_plan(virtual_fc, parse_cli_script("aux 2 1 1 900 1300 0 0", "s"), tmp_path)
+@pytest.mark.parametrize(
+    ("aux", "why"),
+    [
+        ("aux 2 27 3 1700 2100 0 0", r"FAILSAFE on AUX4 1700-2100 \(the OBC's channel: a command "
+         r"sent by accident would switch it\)"),
+        ("aux 2 0 2 1300 2100 0 0", r"ARM on AUX3 1300-2100 \(the OBC's channel"),
+        ("aux 2 1 2 900 1300 0 0", r"ANGLE on AUX3 900-1300 \(the OBC's channel"),
+        ("aux 2 1 1 900 1300 0 0", r"ANGLE on AUX2 900-1300 \(FSP never drives it: stuck"),
+        ("aux 2 28 4 1700 2100 0 0", r"AIR MODE on AUX5 1700-2100 \(FSP never drives it"),
+        ("aux 2 1 0 1700 2100 0 0", r"ANGLE on AUX1 1700-2100 \(AUX1 is the ARM switch the FC "
+         r"holds for the OBC\)"),
+    ],
+    ids=["failsafe-aux4", "arm-aux3", "mode-aux3", "mode-aux2", "mode-aux5", "mode-aux1"],
+)  # fmt: skip
+def test_obc_alone_refuses_modes_a_command_or_nothing_would_switch(
+    virtual_fc: VirtualFC, tmp_path: Path, aux: str, why: str
+) -> None:
+    """ARM or FAILSAFE on a channel FSP drives, any mode on AUX3/AUX4 (the OBC's), on AUX2
+    or AUX5 and up (FSP never drives them), anything but ARM on AUX1: refused, one line
+    naming the range and why, the FC untouched."""
+    apply_plan(virtual_fc, parse_cli_script(aux, "s"), tmp_path)
     eeprom = _eeprom(virtual_fc)
-    with pytest.raises(ParameterError, match=r"FSP never drives AUX1/AUX2.*ANGLE on AUX2 900-1300"):
+    with pytest.raises(ParameterError, match=f"with the OBC alone no mode may sit .*{why}") as err:
         apply_plan(virtual_fc, fsp_planner(uart=2, baud=2_000_000, control=OBC_ALONE), tmp_path)
+    assert "\n" not in str(err.value)
     assert _eeprom(virtual_fc) == eeprom
+
+
+def test_obc_alone_arms_through_aux1_which_the_fc_holds(virtual_fc: VirtualFC, tmp_path: Path):
+    """ARM on AUX1 at 1700-2100 (an ARM range there moved into place, a second one cleared):
+    the switch the FC holds for the OBC's arming requests (spec §14)."""
+    apply_plan(
+        virtual_fc, parse_cli_script("aux 4 0 0 900 1300 0 0\naux 6 0 0 1300 1500 0 0", "s"),
+        tmp_path,
+    )  # fmt: skip
+    notes: list[str] = []
+    apply_plan(
+        virtual_fc, fsp_planner(uart=2, baud=2_000_000, control=OBC_ALONE), tmp_path, notes.append
+    )
+    [aux] = _cli(virtual_fc, "aux")
+    assert _used(aux) == [AuxRange(4, 0, 0, 1700, 2100)]
+    assert "aux 6: ARM on AUX1 1300-1500 cleared: ARM is AUX1 1700-2100" in notes
+    assert any("arms and disarms only by an arming request" in note for note in notes)
+    fresh = tmp_path / "fresh"  # an FC with no ARM range gets one in a free slot
+    with VirtualFC(virtual_fc.binary, fresh, port_base=None) as other:
+        apply_plan(other, fsp_planner(uart=2, baud=2_000_000, control=OBC_ALONE), tmp_path)
+        [aux] = _cli(other, "aux")
+    assert _used(aux) == [AuxRange(0, 0, 0, 1700, 2100)]
+
+
+def _used(aux: str) -> list[AuxRange]:
+    """The mode ranges in use in the FC's `aux` output."""
+    ranges = [AuxRange.parse(line) for line in aux.splitlines() if line.startswith("aux ")]
+    return [r for r in ranges if r.usable]
 
 
 def test_obc_alone_sets_the_procedure_and_says_what_loss_means(
@@ -205,6 +255,74 @@ def test_failsafe_outlook_reads_the_settings() -> None:
         "  1500 ms: stage 2 (failsafe_delay): DROP: the motors stop and the FC disarms — the "
         "aircraft falls"
     )
+
+
+@pytest.mark.parametrize("on_us", [(900, 2100), (1000, 2000), (1100, 2100)])
+def test_an_override_range_without_an_off_position_is_refused(on_us: tuple[int, int]) -> None:
+    start, end = on_us
+    off = r"off position: a switch's low end \(up to 1100 µs\) lies in it"
+    with pytest.raises(ValueError, match=rf"the override range {start}-{end} has no {off}"):
+        SafetyPilot(2, on_us)
+    assert SafetyPilot(2, (1125, 2100)).on_us == (1125, 2100)  # 1100 itself is off there
+    assert SafetyPilot(2, (1700, 2100)).on_us == (1700, 2100)
+
+
+@pytest.mark.parametrize("baud", [2_000_001, 3_000_000, 1_234_567, 0, 4800])
+def test_a_baud_rate_the_fc_does_not_have_is_refused_before_the_fc(baud: int) -> None:
+    """Betaflight's baudRates[]: nothing else in a `serial` line; the planner is refused
+    before it could ever open a session."""
+    with pytest.raises(ParameterError, match=f"the FC takes no baud rate {baud} for a port"):
+        fsp_planner(uart=2, baud=baud, control=OBC_ALONE)
+    for rate in BAUD_RATES:
+        assert check_baud(rate) == rate
+
+
+def test_fsp_moves_between_uarts_and_the_old_port_gets_a_baud_serial_takes(
+    virtual_fc: VirtualFC, tmp_path: Path
+) -> None:
+    """FSP at 2 Mbaud on UART2, then on UART3: UART2 loses FSP and its MSP baud returns to
+    115200 (2000000 is refused there without FSP)."""
+    apply_plan(virtual_fc, fsp_planner(uart=2, baud=2_000_000, control=OBC_ALONE), tmp_path)
+    notes: list[str] = []
+    report = apply_plan(
+        virtual_fc, fsp_planner(uart=3, baud=1_500_000, control=OBC_ALONE), tmp_path, notes.append
+    )
+    assert report.mismatches == []
+    assert "FSP moves from UART2 to UART3 (UART2's MSP baud back to 115200)" in notes
+    [serial] = _cli(virtual_fc, "serial")
+    ports = {c.port: c for c in map(SerialPortConfig.parse, filter(str.strip, serial.splitlines()))}
+    assert (ports["UART2"].functions, ports["UART2"].msp_baud) == (0, 115200)
+    assert (ports["UART3"].functions, ports["UART3"].msp_baud) == (FSP_FUNCTION, 1_500_000)
+
+
+def test_a_safety_pilot_is_told_who_flies_and_how_to_engage_from_the_fcs_settings(
+    virtual_fc: VirtualFC, tmp_path: Path
+) -> None:
+    """Before anything is applied: the pilot engages the OBC once it is ready (spec §15),
+    with the FC's own pulse range and ARM switch; an override mask of more than the sticks
+    goes back to the sticks, said."""
+    apply_plan(
+        virtual_fc,
+        parse_cli_script(
+            "aux 0 0 0 1700 2100 0 0\nset rx_min_usec = 900\nset rx_max_usec = 2100\n"
+            "set msp_override_channels_mask = 255", "s",
+        ),
+        tmp_path,
+    )  # fmt: skip
+    notes: list[str] = []
+    planner = fsp_planner(
+        uart=2, baud=2_000_000, control=SafetyPilot(3, (1300, 2100)), cmd_timeout_ms=40,
+        radio_feature=FEATURE_RX_UDP,
+    )  # fmt: skip
+    report = apply_plan(virtual_fc, planner, tmp_path, notes.append)
+    text = "\n".join(notes)
+    assert "who flies: the pilot" in text
+    assert "within the FC's pulse range 900-2100 µs, for 500 ms without a break" in text
+    assert "the pilot turns AUX3 off and on (into 1300-2100): ENGAGED" in text
+    assert "no fresh command for 40 ms (fsp_cmd_timeout_ms), AUX3 goes off" in text
+    assert "ARM (ARM on AUX1 1700-2100), AUX3 and every AUX channel are the pilot's" in text
+    assert "msp_override_channels_mask 255 → 15: the sticks alone" in text
+    assert {row.name: row.after for row in report.rows}["msp_override_channels_mask"] == "15"
 
 
 def test_switch_range_and_mask_parsing() -> None:

@@ -13,7 +13,16 @@ from collections.abc import Iterator
 
 import pytest
 
-from wftool.sitl.radio import _RC_PACKET, MID, SimulatedRadio, channel_index
+from wftool.fsp import Authority, AuthorityExit, UplinkStatus
+from wftool.sitl.radio import (
+    _RC_PACKET,
+    HIGH,
+    LOW,
+    MID,
+    EngagingPilot,
+    SimulatedRadio,
+    channel_index,
+)
 
 
 @pytest.fixture
@@ -108,3 +117,48 @@ def test_the_transmitter_ends_when_its_holder_is_killed(rc_input: socket.socket)
         time.sleep(0.02)
     else:
         pytest.fail("the transmitter outlived the program holding it")
+
+
+def status(authority: Authority, arrival: float, exit: AuthorityExit = AuthorityExit.NONE):
+    """The FC's uplink status saying who flies, read at OBC time `arrival`."""
+    reported = UplinkStatus(
+        1, 0, 1, 0, 0, 0, 50, 0, 0, 0, authority, exit, 500, 0, 7, 0, 0, 0, 885, 2115
+    )
+    reported.arrival_time = arrival
+    return reported
+
+
+def test_the_pilot_engages_when_the_fc_says_ready_and_says_so(rc_input: socket.socket) -> None:
+    """Off, then a few radio frames later on: once per READY the FC reports after the switch
+    could be seen; PROVING engages nothing; the pilot says when the OBC steers and when it
+    lost the sticks, and why."""
+    said: list[str] = []
+    clock = [100.0]
+    with SimulatedRadio(rc_input.getsockname()[1]) as radio:
+        pilot = EngagingPilot(radio, 2, say=said.append, now=lambda: clock[0])
+        switch = channel_index("aux2")
+        radio.set(aux2=HIGH)  # on before the OBC was ready: engages nothing
+        pilot.observe(None)
+        pilot.observe(status(Authority.PROVING, 100.0))
+        assert radio.channels[switch] == HIGH and pilot.engagements == 0
+        pilot.observe(status(Authority.READY, 100.0))
+        assert radio.channels[switch] == LOW
+        clock[0] += 0.02  # not yet three frames
+        pilot.observe(status(Authority.READY, 100.0))
+        assert radio.channels[switch] == LOW
+        clock[0] += 0.02
+        pilot.observe(status(Authority.READY, 100.0))
+        assert radio.channels[switch] == HIGH and pilot.engagements == 1
+        clock[0] += 0.01
+        pilot.observe(status(Authority.READY, clock[0]))  # read before the FC could see it
+        assert radio.channels[switch] == HIGH and pilot.engagements == 1
+        clock[0] += 0.1
+        pilot.observe(status(Authority.ENGAGED, clock[0]))
+        pilot.observe(status(Authority.PROVING, clock[0], AuthorityExit.TIMEOUT))
+        assert radio.channels[switch] == HIGH and pilot.engagements == 1
+    assert said == [
+        "pilot: the OBC is ready; override switch AUX2 off …",
+        "pilot: override switch AUX2 on: engaging the OBC",
+        "pilot: the OBC is engaged: it steers the sticks",
+        "pilot: the OBC lost the sticks (timeout): the pilot flies",
+    ]

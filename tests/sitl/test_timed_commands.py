@@ -180,22 +180,29 @@ def test_timed_commands_act_at_their_fc_time_within_one_pid_period(alone, obc) -
     assert status is not None and status.accepted >= len(sent)
 
 
-def test_late_and_too_far_commands_are_counted(obc: TimedObc) -> None:
-    now = time.monotonic()
-    past = obc.send(1301, at=now - 0.05)
+def test_late_expired_and_too_far_commands_are_counted(obc: TimedObc) -> None:
+    """Late by less than the command timeout (50 ms): applied at once; by the timeout or
+    more: expired on arrival, never applied (spec §13); due the timeout or more ahead:
+    refused."""
+    past = obc.send(1301, at=time.monotonic() - 0.02)
+    obc.pump(0.01)
+    stale = obc.send(1304, at=time.monotonic() - 0.08)
     obc.pump(0.01)
     far = obc.send(1302, at=time.monotonic() + 0.2)  # beyond the 50 ms timeout
     obc.pump(0.01)
     gone = obc.send(1303, at=time.monotonic() + 0.01)
-    obc.wait_reports([past, far, gone])
+    obc.wait_reports([past, stale, far, gone])
     obc.pump(0.05)
-    late, refused, applied = (obc.reports[p.seq] for p in (past, far, gone))
+    late, expired, refused, applied = (obc.reports[p.seq] for p in (past, stale, far, gone))
     assert late.outcome == CommandOutcome.LATE and late.delay_us is not None
-    assert 40_000 <= late.delay_us <= 60_000 + 1000 * 5  # asked for 50 ms before it came
+    assert 10_000 <= late.delay_us <= 30_000 + 1000 * 5  # asked for 20 ms before it came
+    assert expired.outcome == CommandOutcome.EXPIRED and expired.delay_us is None
     assert refused.outcome == CommandOutcome.TOO_FAR
     assert applied.outcome == CommandOutcome.ON_TIME
     assert refused.counts[CommandOutcome.TOO_FAR] >= 1
-    assert 1301 in obc.rolls() and 1302 not in obc.rolls() and 1303 in obc.rolls()
+    assert expired.counts[CommandOutcome.EXPIRED] >= 1
+    rolls = obc.rolls()
+    assert 1301 in rolls and 1304 not in rolls and 1302 not in rolls and 1303 in rolls
 
 
 def test_an_obc_that_dies_with_commands_queued_is_gone_at_its_last_packets_timeout(

@@ -17,6 +17,7 @@ import pytest
 
 from tests.conftest import run_cli
 from tests.recording.test_rosbag import read_bag
+from wftool.fsp import Authority
 from wftool.sitl.process import free_port_base
 from wftool.sitl.session import Motion, VirtualFcSession
 from wftool.verify.live import LiveOptions, run_live
@@ -150,9 +151,10 @@ def test_what_the_fc_made_of_the_commands_is_shown_recorded_and_replayed(
     sitl_binary: Path, capsys: pytest.CaptureFixture[str], tmp_path: Path
 ) -> None:
     """`wftool sitl --pilot --uplink --verify`: the FC reports what it made of the uplink
-    pattern's commands (E3); the dashboard and --json show its newest report (commands in
-    effect under the pilot's override, the pilot's radio its receiver, disarmed), the
-    recording keeps its reports, and replay shows the same."""
+    pattern's commands (E3); the simulated pilot engages the OBC once the FC says it is
+    ready; the dashboard and --json show its newest report (commands in effect, engaged by
+    the pilot's override, the pilot's radio its receiver, disarmed), the recording keeps
+    its reports in the order who flies changed, and replay shows the same."""
     recording = tmp_path / "run"
     code, live, err = verify_json(
         capsys, "sitl", "--binary", str(sitl_binary), "--workdir", str(tmp_path / "fc"),
@@ -167,14 +169,21 @@ def test_what_the_fc_made_of_the_commands_is_shown_recorded_and_replayed(
     flags = {name: fc[name] for name in ("live", "override", "obc_receiver", "rx_loss", "armed")}
     assert flags == {"live": True, "override": True, "obc_receiver": False, "rx_loss": False,
                      "armed": False}  # fmt: skip
-    assert fc["failsafe_phase"] == "IDLE"
+    assert fc["failsafe_phase"] == "IDLE" and fc["authority"] == "engaged"
     shown = " ".join(err.replace("│", " ").split())  # the last dashboard (stderr with --json)
     assert f"FC uplink accepted {fc['accepted']:,} stale {fc['stale']:,}" in shown
-    assert "on: live, override failsafe IDLE" in shown
+    assert "on: live, override failsafe IDLE who flies: engaged" in shown
+    assert "pilot: the OBC is ready; override switch AUX2 off" in err
+    assert "pilot: the OBC is engaged: it steers the sticks" in err
 
     statuses = [m for _, m in read_bag(recording)["/fsp/uplink_status"]]
     assert len(statuses) >= 5 * 10 * 0.8  # about every one the FC sent, at 10 Hz
-    assert all(m.override and not m.obc_receiver for m in statuses)
+    assert not any(m.obc_receiver for m in statuses)
+    who = [m.authority for m in statuses]
+    who = [a for a, b in zip(who, [None, *who]) if a != b]  # each change once
+    assert who[-3:] == [Authority.PROVING, Authority.READY, Authority.ENGAGED], who
+    engaged = next(i for i, m in enumerate(statuses) if m.authority == Authority.ENGAGED)
+    assert all(m.override for m in statuses[engaged:])  # the pilot's switch, turned on
     accepted = [m.accepted for m in statuses]
     assert accepted == sorted(accepted) and accepted[-1] <= fc["accepted"]
     code, replayed, _ = verify_json(capsys, "replay", str(recording))

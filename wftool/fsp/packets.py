@@ -570,7 +570,8 @@ class CommandOutcome(enum.IntEnum):
     SUPERSEDED = 4
     """Dropped: a newer command acted in its place before or at its time."""
     EXPIRED = 5
-    """Dropped: the OBC timed out (it sent no fresh command for the timeout) before its time."""
+    """Dropped: the OBC timed out (it sent no fresh command for the timeout) before its time;
+    or refused on arrival: its time was a command timeout or more before the FC took it."""
 
 
 OUTCOME_MODULUS = 1 << 16
