@@ -11,11 +11,11 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from wftool.cli.fc import _control, find_board, log, port_option
+from wftool.cli.fc import _control, find_board, log, port_option, uplink_options
 from wftool.cli.sitl import build_sitl
 from wftool.errors import UsageError, VerificationFailed
 from wftool.fc.board import leave_open_cli
-from wftool.fc.fsp_setup import CMD_TIMEOUT_MS_DEFAULT, CMD_TIMEOUT_MS_RANGE, FAILSAFE_PROCEDURES
+from wftool.fc.fsp_setup import FAILSAFE_PROCEDURES
 from wftool.fsp import DEFAULT_BAUDRATE
 from wftool.link.transport import url_problem
 from wftool.preflight.flight import LIMIT_MS
@@ -73,24 +73,16 @@ def _finite(_ctx: click.Context, _param: click.Parameter, value: float) -> float
     help="With --sitl: load this backup (`wftool backup`, or a `diff all`) into the virtual FC "
     "and check that configuration.",
 )  # fmt: skip
-@click.option("--obc-only", is_flag=True, help="With --sitl: configure fsp --obc-only.")
+@click.option(
+    "--obc-only", is_flag=True,
+    help="With --sitl: configure fsp --obc-only (the switch and timeout options below: with "
+    "--sitl, configure fsp's).",
+)  # fmt: skip
 @click.option(
     "--failsafe-procedure", type=click.Choice(list(FAILSAFE_PROCEDURES)),
     help="With --sitl --obc-only: configure fsp --failsafe-procedure [drop].",
 )  # fmt: skip
-@click.option(
-    "--override-switch", metavar="AUXn", default="AUX2", show_default=True,
-    help="With --sitl: configure fsp --override-switch.",
-)  # fmt: skip
-@click.option(
-    "--override-range", metavar="START-END", default="1700-2100", show_default=True,
-    help="With --sitl: configure fsp --override-range.",
-)  # fmt: skip
-@click.option(
-    "--cmd-timeout-ms", type=click.IntRange(*CMD_TIMEOUT_MS_RANGE),
-    default=CMD_TIMEOUT_MS_DEFAULT, show_default=True,
-    help="With --sitl: configure fsp --cmd-timeout-ms.",
-)  # fmt: skip
+@uplink_options
 @click.option(
     "--binary", type=click.Path(exists=True, dir_okay=False, path_type=Path),
     help="With --sitl: this SITL program [build the patched one].",

@@ -355,6 +355,21 @@ class Flight:
             return None if said is None or said.sent_us is None else (said.sent_us - taken) / 1000
         return None
 
+    def never_shown(self, name: str, rc: Sequence[int], frames: int, since: float) -> Line:
+        """A line: no frame from index `frames` on, nor MSP reply after host time `since`,
+        carries the sticks of `rc`."""
+        wanted = rc[:STICKS]
+        shown = [f for f in self.obc.frames.since(frames) if near(f.sticks, wanted)]
+        replies = [s for s in self.watcher.since(since) if near(s.sticks, wanted)]
+        return self.report.check(
+            name,
+            not shown and not replies,
+            f"its sticks in {len(shown)} frames, {len(replies)} MSP replies",
+            "none",
+            value=len(shown),
+            unit="frames",
+        )
+
     def back_to_pilot(
         self, title: str, last: Sent | None, *, by_fc: bool = True, stays_s: float = HOLD_S
     ) -> Line | None:

@@ -246,16 +246,7 @@ def twin(flight: Flight) -> None:
     time.sleep(1.0)
     flight.obc.twin(None)
     seen = flight.watcher.since(start)
-    reached = [s for s in seen if near(s.sticks, other[:STICKS])]
-    reached_frames = [f for f in flight.obc.frames.since(frames) if near(f.sticks, other[:STICKS])]
-    flight.report.check(
-        f"{title}: its commands never steer",
-        not reached and not reached_frames,
-        f"its sticks in {len(reached_frames)} frames, {len(reached)} MSP replies",
-        "none",
-        value=len(reached_frames),
-        unit="frames",
-    )
+    flight.never_shown(f"{title}: its commands never steer", other, frames, start)
     after = flight.obc.status
     foreign = _grew(before, after, "foreign")
     flight.report.check(
@@ -411,16 +402,7 @@ def late(flight: Flight) -> None:
         "expired",
     )
     time.sleep(HOLD_S)
-    shown = [f for f in flight.obc.frames.since(frames) if near(f.sticks, marked[:STICKS])]
-    shown_msp = [s for s in flight.watcher.since(start) if near(s.sticks, marked[:STICKS])]
-    flight.report.check(
-        f"{title}: never applied (the sticks never show it)",
-        not shown and not shown_msp,
-        f"in {len(shown)} frames, {len(shown_msp)} MSP replies",
-        "none",
-        value=len(shown),
-        unit="frames",
-    )
+    flight.never_shown(f"{title}: never applied (the sticks never show it)", marked, frames, start)
     flight.obc.behave("stopped")
 
 
