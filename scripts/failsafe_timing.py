@@ -45,6 +45,11 @@ def table(setup: str, report: Report) -> list[str]:
     return rows
 
 
+def failures(setup: str, report: Report) -> list[str]:
+    """What each failed line measured (the table counts them)."""
+    return [f"{setup}: FAIL {line.name}: {line.measured}" for line in report.failed]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--trials", type=int, default=5)
@@ -54,7 +59,8 @@ def main() -> None:
     parser.add_argument("--setup", choices=list(SETUPS), action="append")
     parser.add_argument("--scenario", choices=list(BY_KEY), action="append")
     args = parser.parse_args()
-    rows = []
+    rows: list[str] = []
+    failed: list[str] = []
     for setup in args.setup or list(SETUPS):
         with on_virtual_fc(
             args.binary,
@@ -66,11 +72,14 @@ def main() -> None:
             trials=args.trials,
             log=print,
         ) as preflight:
-            rows += table(setup, preflight.run())
+            report = preflight.run()
+        rows += table(setup, report)
+        failed += failures(setup, report)
     print(f"\nfsp_cmd_timeout_ms {args.cmd_timeout_ms}, {args.trials} trials each (virtual FC)")
     print("| set-up | line | min / median / max | clock | passed |")
     print("|---|---|---|---|---|")
     print("\n".join(rows))
+    print("\n".join(failed))
 
 
 if __name__ == "__main__":

@@ -39,6 +39,18 @@ class StandInFc:
         return b""
 
 
+def test_a_reply_asked_before_is_no_news() -> None:
+    """A wait from `since` takes only replies asked for from then on: one already on its way
+    shows the FC before the change."""
+    fc = StandInFc()
+    with msp_stand_in(fc.reply) as url, MspClient.open(url) as msp, FcWatcher(msp) as watcher:
+        watcher.latest()
+        since = time.monotonic()
+        seen = watcher.wait(lambda s: True, since, 5.0)
+        assert seen is not None and seen.asked >= since
+        assert all(s.asked >= since for s in watcher.since(since))
+
+
 def test_snapshots_show_the_sticks_and_modes_as_asked() -> None:
     fc = StandInFc()
     with msp_stand_in(fc.reply) as url, MspClient.open(url) as msp, FcWatcher(msp) as watcher:
@@ -46,7 +58,8 @@ def test_snapshots_show_the_sticks_and_modes_as_asked() -> None:
         assert first.sticks == (1500, 1500, 1500, 1000) and first.rx_loss and not first.armed
         assert watcher.has_override
         fc.rc[0], fc.boxes, fc.arming = 1800, 1 << 2 | 1 << 3, 0
-        seen = watcher.settled(lambda s: s.override and s.failsafe and s.rc[0] == 1800, 5.0)
+        changed = time.monotonic()
+        seen = watcher.wait(lambda s: s.override and s.failsafe and s.rc[0] == 1800, changed, 5.0)
         assert seen is not None and not seen.rx_loss and seen.can_arm and not seen.armed
         assert seen.asked >= first.t  # asked for after the change
 
@@ -62,7 +75,7 @@ def test_the_armed_fc_is_heard_from_the_reading_thread() -> None:
         watcher.latest()
         assert heard == []
         fc.boxes = 1
-        assert watcher.settled(lambda s: s.armed, 5.0) is not None
+        assert watcher.wait(lambda s: s.armed, time.monotonic(), 5.0) is not None
     assert heard and all(s.armed for s in heard)
 
 

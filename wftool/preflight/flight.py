@@ -172,7 +172,7 @@ class Flight:
         """The pilot turns the override switch on or off; True once the FC shows it (the MSP
         OVERRIDE mode, asked for after the move)."""
         self.pilot.hold(override=on)
-        return self.watcher.settled(lambda s: s.override == on, WAIT_S) is not None
+        return self.watcher.wait(lambda s: s.override == on, time.monotonic(), WAIT_S) is not None
 
     def engage(self, what: str, since: int) -> bool:
         """The pilot engages a live OBC: once it is ready (spec §15: a status from index
@@ -241,13 +241,14 @@ class Flight:
             self.arming_failed = True
             return False
         self.armed = True
+        moved = time.monotonic()
         if not self.alone:
             self.pilot.hold(armed=True)
         elif self.authority:
             self.obc.request_arming(ArmingAction.ARM)
         else:
             self.obc.behave("fresh", self.command())
-        armed = self.watcher.wait(lambda s: s.armed, time.monotonic() - 0.01, WAIT_S)
+        armed = self.watcher.wait(lambda s: s.armed, moved, WAIT_S)
         who = "the OBC (an arming request)" if self.alone else "the pilot"
         self.report.check(
             f"{who} arms (--arm)", armed is not None, "armed" if armed else "not armed", "armed"
@@ -290,7 +291,7 @@ class Flight:
         from the write to the MSP reply (an upper bound). The snapshot that showed it."""
         limit = self.limit_ms if limit_ms is None else limit_ms
         since = last.written if last is not None else time.monotonic()
-        seen = self.watcher.wait(lambda s: s.asked >= since and shows(s), since, WAIT_S)
+        seen = self.watcher.wait(shows, since, WAIT_S)
         ms: float | None = None
         clock = HOST_CLOCK
         if seen is not None:

@@ -135,23 +135,18 @@ class FcWatcher:
         return latest
 
     def since(self, t: float) -> list[Snapshot]:
-        """The snapshots whose replies arrived after host time `t`."""
-        return self.snapshots.since(self.snapshots.index_after(t, _arrival))
+        """The snapshots asked for from host time `t` on: what the FC showed after `t`."""
+        kept = self.snapshots.since(self.snapshots.index_after(t, _arrival))
+        return [s for s in kept if s.asked >= t]
 
     def wait(
         self, predicate: Callable[[Snapshot], bool], since: float, timeout: float
     ) -> Snapshot | None:
-        """The first snapshot that arrived after host time `since` for which `predicate`
-        holds, waiting up to `timeout` seconds from now; None if none came."""
+        """The first snapshot asked for from host time `since` on (so showing the FC after
+        `since`, not a reply already on its way) for which `predicate` holds, waiting up to
+        `timeout` seconds from now; None if none came."""
         start = self.snapshots.index_after(since, _arrival)
-        return self.snapshots.wait(predicate, start, timeout)
-
-    def settled(self, predicate: Callable[[Snapshot], bool], timeout: float) -> Snapshot | None:
-        """A snapshot asked for from now on for which `predicate` holds (what the FC shows
-        once a change made now has reached it)."""
-        now = time.monotonic()
-        start = self.snapshots.index_after(now, _arrival)
-        return self.snapshots.wait(lambda s: s.asked >= now and predicate(s), start, timeout)
+        return self.snapshots.wait(lambda s: s.asked >= since and predicate(s), start, timeout)
 
 
 def _arrival(snapshot: Snapshot) -> float:
