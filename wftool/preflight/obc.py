@@ -214,14 +214,14 @@ class Obc:
 
     def twin(self, rc: Sequence[int] | None) -> None:
         """A second OBC program on the port sends fresh commands carrying `rc` each tick
-        besides this one's (None: it stops), numbered alongside this one's (two programs
-        started together)."""
+        besides this one's (None: it stops), numbered just ahead of this one's (a program
+        started a moment before: where the FC tells no senders apart, its commands win)."""
 
         def twinned() -> None:
             self._twin = None
             if rc is not None:
                 other = self._new_sender()
-                other.seq = self.sender.seq
+                other.seq = self.sender.seq + 1
                 self._twin = (other, tuple(rc))
 
         self._do(twinned)
