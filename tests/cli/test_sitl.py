@@ -73,3 +73,41 @@ def test_time_reply_with_verify_needs_commands(capsys: pytest.CaptureFixture[str
     code, _, err = run_cli(capsys, "sitl", "--time-reply", "--verify", "3")
     assert code == 2
     assert err.strip() == "error: --time-reply answers commands: add --uplink to send them"
+
+
+def test_with_the_users_obc_on_the_port_enter_engages_it(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """`wftool sitl --pilot` with nothing of wftool's reading the stream: each Enter on the
+    terminal turns the override switch off and on; the end of input changes nothing more."""
+    import os
+    import socket
+    import threading
+
+    from wftool.cli.sitl import flip_on_enter
+    from wftool.sitl.radio import HIGH, LOW, EngagingPilot, SimulatedRadio, channel_index
+
+    master, slave = os.openpty()
+    with (
+        socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as rc_input,
+        os.fdopen(slave, "r") as terminal,
+    ):
+        rc_input.bind(("127.0.0.1", 0))
+        monkeypatch.setattr(sys, "stdin", terminal)
+        with SimulatedRadio(rc_input.getsockname()[1]) as radio:
+            said: list[str] = []
+            pilot = EngagingPilot(radio, 2, say=said.append)
+            stop = threading.Event()
+            flips = threading.Thread(target=flip_on_enter, args=(pilot, stop))
+            flips.start()
+            try:
+                assert radio.channels[channel_index("aux2")] == LOW
+                os.write(master, b"\n")
+                assert wait_for(lambda: pilot.engagements == 1, 5.0)
+                assert radio.channels[channel_index("aux2")] == HIGH
+                assert said == ["pilot: override switch AUX2 on: engaging the OBC"]
+            finally:
+                stop.set()
+                flips.join(5.0)
+                os.close(master)
+    assert not flips.is_alive()

@@ -238,7 +238,12 @@ def _switches(sent: list[tuple[int, ...]]) -> int:
     return sum(a[0] != b[0] for a, b in itertools.pairwise(sent))
 
 
-@pytest.mark.parametrize("bridge", [{"accept_commands": True}], indirect=True)
+TWIN_LIMIT = {"accept_commands": True, "command_max_age_ns": 300 * MS}
+"""The age limit of the twin tests: a publisher silent that long has ended its turn, and a
+loaded host stalls a 100 Hz Python publisher for 50 ms now and then."""
+
+
+@pytest.mark.parametrize("bridge", [TWIN_LIMIT], indirect=True)
 def test_a_twin_publisher_is_counted_and_ignored(bridge: Ros2Bridge):
     """Two programs publishing commands at 100 Hz side by side: what reaches the FC comes
     from one of them while it publishes, the other's are foreign; a hand-over only once
@@ -255,7 +260,7 @@ def test_a_twin_publisher_is_counted_and_ignored(bridge: Ros2Bridge):
     assert throttles == sorted(set(throttles))  # in order, each once
 
 
-@pytest.mark.parametrize("bridge", [{"accept_commands": True}], indirect=True)
+@pytest.mark.parametrize("bridge", [TWIN_LIMIT], indirect=True)
 def test_a_dead_publisher_hands_over_to_the_live_one_after_the_age_limit(bridge: Ros2Bridge):
     """The publisher taken is killed (SIGKILL) mid-run: its twin, ignored until then, is
     taken once the first has been silent for the age limit."""

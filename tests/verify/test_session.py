@@ -193,3 +193,22 @@ def test_transport_loss_and_fc_drops_are_no_fc_jitter() -> None:
     assert summary.source_rate_hz == pytest.approx(FRAME_RATE_HZ)
     checks = {check.name: check.passed for check in result.verdict.checks}
     assert checks["FC interval spread"] and not checks["transport loss"]
+
+
+def test_an_uplink_pattern_outside_the_fcs_pulse_range_is_one_usage_error() -> None:
+    """The FC reports a pulse range the pattern (rolls 1100-1900 µs, throttle 1000) leaves:
+    the run ends in one line naming the value and the FC's range, sending nothing outside."""
+    from wftool.fsp import Authority, AuthorityExit, UplinkStatus, encode_uplink_status
+
+    def narrow(index: int, _nth: int) -> bytes | None:
+        status = UplinkStatus(
+            0, 1_000_000 + 2 * index * PERIOD + 50, 0, 0, 0, 0, 50, 0, 0, 0, Authority.PILOT,
+            AuthorityExit.NONE, 500, 0, 0, 0, 0, 0, 1200, 1800,
+        )  # fmt: skip
+        return intact(index) + encode_uplink_status(status)
+
+    with FakeFc(narrow) as fc:
+        session = VerifySession(fc.url, duration_s=5.0, uplink_rate_hz=50.0)
+        outside = r"RC \w+ \d+ µs is outside the FC's pulse range 1200\.\.1800 µs"
+        with pytest.raises(UsageError, match=rf"^cannot send the command \(.*\): {outside}"):
+            session.run()

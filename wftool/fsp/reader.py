@@ -151,8 +151,9 @@ class FspReader(FspPort):
         *,
         decoder: StateDecoder | None = None,
         now: Callable[[], float] = time.monotonic,
+        sender: CommandSender | None = None,
     ) -> None:
-        super().__init__(url, baudrate, now=now)
+        super().__init__(url, baudrate, now=now, sender=sender)
         self.decoder = decoder if decoder is not None else StateDecoder()
         self.sender.round_trips = self.decoder.round_trips  # E2: replies answer these
 

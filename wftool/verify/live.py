@@ -224,13 +224,18 @@ class _LiveRun:
         return t
 
     def _send(self, port: FspPort, rc: tuple[int, ...], t: float) -> CommandPacket:
+        """Send `rc`; a `UsageError` if it holds a value the FC's pulse range leaves out (spec
+        §5: the FC would refuse it whole), nothing sent."""
         lead = self._options.uplink_lead_s
-        if lead is not None:
-            try:
-                return port.send_command(rc, now=t, at=t + lead, decoder=self._monitor.decoder)
-            except ClockError:
-                pass  # until the run's clock locks, the pattern goes out as immediate commands
-        return port.send_command(rc, now=t)
+        try:
+            if lead is not None:
+                try:
+                    return port.send_command(rc, now=t, at=t + lead, decoder=self._monitor.decoder)
+                except ClockError:
+                    pass  # until the run's clock locks, the pattern goes out as immediate commands
+            return port.send_command(rc, now=t)
+        except ValueError as exc:
+            raise UsageError(f"cannot send the command {rc}: {exc}") from None
 
     def _drop(self, t: float) -> None:
         """The port is gone (or the run is over): close it, and retry after the backoff."""
