@@ -86,8 +86,9 @@ def test_a_restart_a_twin_and_a_clock_step(fc: FspStandIn) -> None:
         obc.twin(None)
         twins = [c for c in fc.commands[count:] if c.rc == other]
         mine = [c for c in fc.commands[count:] if c.rc == README_COMMAND]
-        assert twins and mine and abs(twins[0].seq - mine[0].seq) <= 1  # numbered alongside
-        before = fc.commands[-1]
+        assert twins and mine and twins[0].sender != mine[0].sender
+        assert any(c.seq == twins[0].seq - 1 for c in mine)  # just ahead: a program started before
+        before = [c for c in fc.commands if c.sender == obc.sender.sender][-1]
         obc.step_clock(-5.0, COMMAND)
         until(lambda: fc.commands[-1].rc == COMMAND)
         after = fc.commands[-1]
