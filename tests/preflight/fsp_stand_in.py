@@ -46,6 +46,7 @@ class FspStandIn:
         self._thread = threading.Thread(target=self._serve, daemon=True)
         self._connection: socket.socket | None = None
         self._pause_s = 0.0
+        self._paused = threading.Event()
 
     def __enter__(self) -> FspStandIn:
         self._thread.start()
@@ -65,9 +66,12 @@ class FspStandIn:
         self._thread.join(5)
 
     def pause(self, seconds: float) -> None:
-        """Read nothing for `seconds` once (a link or an FC that stalls)."""
+        """Read nothing for `seconds` once (a link or an FC that stalls), from before this
+        returns."""
+        self._paused.clear()
         with self._lock:
             self._pause_s = seconds
+        self._paused.wait(5)
 
     def now_us(self) -> int:
         return int((time.monotonic() - self._start) * 1e6)
@@ -100,7 +104,9 @@ class FspStandIn:
         while not self._stop.is_set():
             with self._lock:
                 pause, self._pause_s = self._pause_s, 0.0
-            time.sleep(pause)
+            if pause:
+                self._paused.set()
+                time.sleep(pause)
             try:
                 data = connection.recv(1 << 16)
                 if not data:

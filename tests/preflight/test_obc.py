@@ -178,10 +178,10 @@ def test_a_stall_of_its_own_thread_is_recorded(fc: FspStandIn) -> None:
         assert stall is not None and stall >= 0.06  # written late, and so taken late
         obc.behave("stopped")
         stalls = obc.stalls.end
-        time.sleep(0.1)
+        time.sleep(0.5)
         obc.behave("fresh", COMMAND)  # a pause it meant is no stall
         until(lambda: len(fc.commands) >= 15)
-        assert obc.stalls.end == stalls
+        assert max(obc.stalls.since(stalls), default=0.0) < 0.4
 
 
 def test_commands_the_fc_took_late_are_a_stall_too(fc: FspStandIn) -> None:
@@ -192,6 +192,8 @@ def test_commands_the_fc_took_late_are_a_stall_too(fc: FspStandIn) -> None:
         fc.pause(0.08)
         stall = obc.stalls.wait(lambda gap: True, 0, 5.0)
         assert stall is not None and stall >= 0.07
-        obc.restart(COMMAND)  # a new program: its link starts anew, no stall
+        stalls = obc.stalls.end
+        fc.pause(0.5)  # the old program's last and the new one's first commands taken late:
+        obc.restart(COMMAND)  # a new program, a new link, no stall across the two
         until(lambda: len(fc.commands) >= 20)
-        assert obc.stalls.end == 1
+        assert max(obc.stalls.since(stalls), default=0.0) < 0.4

@@ -124,6 +124,9 @@ class Obc:
         self._steady = False
         self._taken_us: int | None = None
         """FC time the latest fresh command of the steady run was taken."""
+        self._counted_from = 0.0
+        """The OBC time (a command's stamp) from which the FC's taking counts for stalls:
+        replies to commands sent before a new link (a restart, a clock step, a pause) do not."""
         self._fresh: deque[Sent] = deque(maxlen=50)
         self._port: Port | None = None
         self._fd: int | None = None
@@ -205,7 +208,7 @@ class Obc:
 
         def restarted() -> Sent | None:
             last = self.last_fresh
-            self._taken_us = None  # the new program's link starts anew
+            self._new_link()  # the new program's link
             self.sender = self._new_sender()
             self._mode, self._rc = "fresh", tuple(rc)
             return last
@@ -231,8 +234,8 @@ class Obc:
         which carries `rc` (default: as before); the last fresh command stamped before."""
 
         def stepped() -> Sent | None:
-            self._taken_us = None  # a new link (spec §11)
             self._clock_offset += seconds
+            self._new_link()  # a new link (spec §11)
             if rc is not None:
                 self._rc = tuple(rc)
             return self.last_fresh
@@ -379,9 +382,10 @@ class Obc:
         if self._twin is not None:
             twin, rc = self._twin
             self._write(encode_command(twin.next(rc, self.clock())))
-        self._steady = mode == "fresh"
-        if not self._steady:
-            self._taken_us = None
+        steady = mode == "fresh"
+        if steady and not self._steady:
+            self._new_link()
+        self._steady = steady
 
     def _send(self, packet: CommandPacket, stamp: float) -> Sent:
         wire = encode_command(packet)
@@ -424,12 +428,17 @@ class Obc:
 
     def _answered(self, trip: RoundTrip) -> None:
         self.trips.add(trip)
-        if self._steady:
+        if self._steady and trip.obc_sent >= self._counted_from:
             if self._taken_us is not None:
                 gap = (trip.fc_received_us - self._taken_us) / 1e6
                 if gap > self.stall_s:
                     self.stalls.add(gap)
             self._taken_us = trip.fc_received_us
+
+    def _new_link(self) -> None:
+        """The FC's taking of commands from now on is a new run of them (no stall across)."""
+        self._taken_us = None
+        self._counted_from = self.clock()
 
     def _taken(self, sent: Sent) -> int | None:
         with self.trips.changed:
