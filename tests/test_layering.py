@@ -23,7 +23,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("fsp",),  # the OBC library
     ("fc", "firmware"),
     ("flash", "recording", "sitl"),
-    ("verify", "ros2"),  # ros2: the live ROS 2 node
+    ("verify", "ros2", "preflight"),  # ros2: the live ROS 2 node; preflight: a board's checks
     ("analysis", "bench"),
     ("doctor", "paper"),
     ("cli",),

@@ -13,13 +13,14 @@ def test_a_range_is_on_from_its_start_up_to_its_end() -> None:
     assert not AuxRange(0, MODE_ARM, 0, 900, 900).covers(900)  # an unused slot
 
 
-def test_the_off_position_is_a_switch_end_clear_of_the_range() -> None:
+def test_the_off_position_is_the_switchs_low_end_left_out() -> None:
     assert AuxRange(0, 50, 1, 1700, 2100).off_us == 1000
-    assert AuxRange(0, 50, 1, 900, 1300).off_us == 2000
     assert AuxRange(0, 50, 1, 1300, 1700).off_us == 1000  # a three-position switch's middle
+    assert AuxRange(0, 50, 1, 1125, 2100).off_us == 1000
     assert AuxRange(0, 50, 1, 900, 2100).off_us is None
-    assert AuxRange(0, 50, 1, 1000, 2000).off_us is None  # either end may read inside
-    assert AuxRange(0, 50, 1, 1050, 1950).off_us is None  # within jitter of both ends
+    assert AuxRange(0, 50, 1, 1000, 2000).off_us is None  # the low end reads inside
+    assert AuxRange(0, 50, 1, 1100, 2100).off_us is None  # within a radio's jitter of it
+    assert AuxRange(0, 50, 1, 900, 1300).off_us is None  # on at rest, off only when flicked
 
 
 def test_msp_mode_ranges_are_the_aux_slots() -> None:

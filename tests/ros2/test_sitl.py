@@ -22,9 +22,9 @@ import pytest
 from tests.ros2 import peers
 from wftool.fc.msp import MspClient
 from wftool.fsp import Authority, AuthorityExit
-from wftool.sitl.radio import EngagingPilot, SimulatedPilot
+from wftool.preflight.watcher import FcWatcher
+from wftool.sitl.radio import HIGH, LOW, EngagingPilot
 from wftool.sitl.session import PILOT_ARM, PILOT_OVERRIDE, Motion, VirtualFcSession
-from wftool.verify.preflight import FcWatcher
 
 pytestmark = pytest.mark.usefixtures("ros2_env")
 
@@ -133,7 +133,7 @@ def piloted(sitl_binary: Path, tmp_path: Path) -> Iterator[tuple[VirtualFcSessio
         watcher = FcWatcher(msp).start()
         try:
             assert watcher.wait(lambda s: s.can_arm, time.monotonic(), 20.0), "arming disabled"
-            SimulatedPilot(fc.radio, PILOT_OVERRIDE, PILOT_ARM).hold(armed=True, override=False)
+            fc.radio.set({f"aux{PILOT_ARM}": HIGH, f"aux{PILOT_OVERRIDE}": LOW})
             on = watcher.wait(lambda s: s.armed, time.monotonic(), 5.0)
             assert on is not None, "the pilot cannot arm"
             yield fc, watcher

@@ -9,14 +9,10 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-import pytest
-
 from wftool.fc.msp import MspClient
 from wftool.fsp import ArmingAction, Authority, AuthorityExit, FspReader, UplinkFlag, UplinkStatus
 from wftool.sitl.radio import EngagingPilot
 from wftool.sitl.session import PILOT_OVERRIDE, Motion, VirtualFcSession
-
-pytestmark = pytest.mark.slow
 
 PERIOD_S = 0.01
 """The OBC commands at 100 Hz."""

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any, TypeVar
 
 import click
 from rich.console import Console
@@ -42,6 +44,7 @@ from wftool.fc.params import (
 from wftool.flash import flasher
 from wftool.fsp.schedule import DEFAULT_RATE_HZ, RATE_HZ_MAX, RATE_HZ_MIN
 
+F = TypeVar("F", bound=Callable[..., Any])
 console = Console(highlight=False, soft_wrap=True)
 status = Console(stderr=True, highlight=False, soft_wrap=True)
 
@@ -68,6 +71,30 @@ backup_dir_option = click.option(
     show_default=True,
     help="Where configuration backups are written.",
 )
+
+
+def uplink_options(command: F) -> F:
+    """`configure fsp`'s options of the safety pilot's switch and the command timeout (the
+    virtual FC of `preflight --sitl` takes them too)."""
+    for option in reversed((
+        click.option(
+            "--override-switch", metavar="AUXn", default="AUX2", show_default=True,
+            help="The pilot's switch that hands roll, pitch, yaw and throttle to the OBC "
+            "(the MSP OVERRIDE mode); ARM and the switch stay with the pilot.",
+        ),
+        click.option(
+            "--override-range", metavar="START-END", default="1700-2100", show_default=True,
+            help="Where the switch is on, in µs; its low end (up to 1100 µs) must be off.",
+        ),
+        click.option(
+            "--cmd-timeout-ms", type=click.IntRange(*CMD_TIMEOUT_MS_RANGE),
+            default=CMD_TIMEOUT_MS_DEFAULT, show_default=True,
+            help="fsp_cmd_timeout_ms: this long after its last fresh command the OBC counts "
+            "as gone.",
+        ),
+    )):  # fmt: skip
+        command = option(command)
+    return command
 
 
 def _apply(port: str | None, plan: Plan | Planner, backup_dir: Path) -> None:
@@ -146,20 +173,7 @@ def configure() -> None:
     show_default=True,
     help="Target FSP sample rate (fsp_rate_hz).",
 )
-@click.option(
-    "--override-switch", metavar="AUXn", default="AUX2", show_default=True,
-    help="The pilot's switch that hands roll, pitch, yaw and throttle to the OBC "
-    "(the MSP OVERRIDE mode); ARM and the switch stay with the pilot.",
-)  # fmt: skip
-@click.option(
-    "--override-range", metavar="START-END", default="1700-2100", show_default=True,
-    help="Where the switch is on, in µs; its low end (up to 1100 µs) must be off.",
-)  # fmt: skip
-@click.option(
-    "--cmd-timeout-ms", type=click.IntRange(*CMD_TIMEOUT_MS_RANGE),
-    default=CMD_TIMEOUT_MS_DEFAULT, show_default=True,
-    help="fsp_cmd_timeout_ms: this long after its last fresh command the OBC counts as gone.",
-)  # fmt: skip
+@uplink_options
 @click.option(
     "--obc-only", is_flag=True,
     help="No safety pilot: the OBC is the FC's only receiver (feature RX_MSP). Needs "

@@ -10,7 +10,13 @@ from dataclasses import dataclass, replace
 
 from wftool.errors import CliCommandError, ParameterError, ProtocolError
 from wftool.fc.cli_session import CliSession
-from wftool.fc.modes import AUX_CHANNELS, MODE_ARM, MODE_MSP_OVERRIDE, AuxRange
+from wftool.fc.modes import (
+    AUX_CHANNELS,
+    MODE_ARM,
+    MODE_MSP_OVERRIDE,
+    SWITCH_LOW_US,
+    AuxRange,
+)
 from wftool.fc.msp import FEATURE_RX_MSP, RECEIVER_FEATURES
 from wftool.fc.params import Command, FeatureChange, Plan, Planner, set_command
 from wftool.fsp.schedule import DEFAULT_RATE_HZ
@@ -100,9 +106,6 @@ PROCEDURE_OUTCOMES = {
 }
 
 
-SWITCH_LOW_US = 1100
-"""A switch's low end reads at most this (1000 µs, with a radio's endpoints and jitter):
-an override range must leave it out, or the switch has no off position."""
 PROOF_MS = 500
 """How long an OBC's link must have been live before the pilot can engage it (the
 firmware's FSP_AUTHORITY_PROOF_US, spec §15; every uplink status reports it)."""
@@ -135,7 +138,7 @@ class SafetyPilot:
 
     def __post_init__(self) -> None:
         start, end = self.on_us
-        if start <= SWITCH_LOW_US:
+        if AuxRange(0, MODE_MSP_OVERRIDE, self.switch - 1, start, end).off_us is None:
             raise ValueError(
                 f"the override range {start}-{end} has no off position: a switch's low end "
                 f"(up to {SWITCH_LOW_US} µs) lies in it, so the OBC would fly with the switch "

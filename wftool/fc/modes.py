@@ -25,9 +25,9 @@ RANGE_MIN_US, RANGE_STEP_US = 900, 25
 """A mode range's steps on the wire (MSP_MODE_RANGES): 900 µs + 25 µs a step."""
 SWITCH_ENDS_US = (1000, 2000)
 """Where a two- or three-position switch of a radio sits at either end."""
-OFF_MARGIN_US = 100
-"""How far outside a range a switch end must lie to be off whatever the radio's endpoints
-(988–2012 µs on many transmitters) and jitter."""
+SWITCH_LOW_US = 1100
+"""A switch's low end reads at most this (1000 µs, with a radio's endpoints and jitter): a
+range that switches a mode off must leave it out (`AuxRange.off_us`)."""
 
 
 def mode_name(mode: int) -> str:
@@ -74,15 +74,10 @@ class AuxRange:
 
     @property
     def off_us(self) -> int | None:
-        """A switch end (`SWITCH_ENDS_US`) at least `OFF_MARGIN_US` outside the range, where
-        the switch is off; None if the range leaves it no off position (900-2100, or
-        1000-2000, which a switch at either end may still be read in)."""
-        low, high = SWITCH_ENDS_US
-        if self.start >= low + OFF_MARGIN_US:
-            return low
-        if self.end <= high - OFF_MARGIN_US:
-            return high
-        return None
+        """Where the switch is off: its low end (`SWITCH_ENDS_US`), which the range must leave
+        out (start above `SWITCH_LOW_US`) — a switch at rest, or one a pilot flicks down, is
+        off; None if the range takes the low end in (900-2100, 1000-2000, 900-1300)."""
+        return SWITCH_ENDS_US[0] if self.start > SWITCH_LOW_US else None
 
     def command(self) -> str:
         fields = (self.slot, self.mode, self.channel, self.start, self.end, self.logic)

@@ -81,11 +81,14 @@ class SimulatedRadio:
         with self._lock:
             return tuple(self._channels)
 
-    def set(self, values: Mapping[str, int] | None = None, **named: int) -> None:
-        """Move sticks and switches by name (`channel_index`): `set(roll=1300, aux2=2000)`.
-        The next frame carries them."""
-        changes = {**(values or {}), **named}
-        indices = {channel_index(name): value for name, value in changes.items()}
+    def set(
+        self, values: Mapping[str, int] | Mapping[int, int] | None = None, **named: int
+    ) -> None:
+        """Move sticks and switches by name (`channel_index`): `set(roll=1300, aux2=2000)`,
+        or by raw channel (0-based): `set({5: 2000})`. The next frame carries them."""
+        indices = {channel_index(name): value for name, value in named.items()}
+        for key, value in (values or {}).items():
+            indices[key if isinstance(key, int) else channel_index(key)] = value
         with self._lock:
             for index, value in indices.items():
                 self._channels[index] = value
@@ -161,31 +164,6 @@ def transmit(port: int, rate_hz: float) -> None:
             next_send += period
             if next_send < time.monotonic() - period:  # the host stalled: no burst of stale frames
                 next_send = time.monotonic()
-
-
-class SimulatedPilot:
-    """`wftool preflight`'s pilot on the virtual FC (`verify.preflight.Pilot`): moves the
-    switches of a `SimulatedRadio` itself, sticks centred and throttle low."""
-
-    simulated = True
-
-    def __init__(self, radio: SimulatedRadio, override_switch: int = 2, arm_switch: int = 1):
-        self.radio = radio
-        self._override = f"aux{override_switch}"
-        self._arm = f"aux{arm_switch}"
-
-    def hold(self, *, override: bool | None = None, armed: bool | None = None) -> None:
-        changes = {}
-        if override is not None:
-            changes[self._override] = HIGH if override else LOW
-        if armed is not None:
-            changes[self._arm] = HIGH if armed else LOW
-        self.radio.set(changes)
-        time.sleep(2 * self.radio.frame_period_s)  # the next frame carries it
-
-    def transmitter(self, on: bool) -> bool:
-        self.radio.transmitting(on)
-        return True
 
 
 class EngagingPilot:

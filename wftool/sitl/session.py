@@ -27,6 +27,7 @@ from pathlib import Path
 from wftool.fc.cli_session import CliSession
 from wftool.fc.fsp_setup import (
     CMD_TIMEOUT_MS_DEFAULT,
+    Control,
     ObcOnly,
     SafetyPilot,
     SerialPortConfig,
@@ -182,6 +183,9 @@ class VirtualFcSession:
         cmd_timeout_ms: int = CMD_TIMEOUT_MS_DEFAULT,
         failsafe_procedure: str = "drop",
         arm_switch: int | None = None,
+        control: Control | None = None,
+        configuration: Planner | None = None,
+        fsp_uart: int = FSP_UART,
     ) -> None:
         """`time_reply`: the FC answers each command with a time reply (spec §10);
         `port_base=None`: any free ports (see `VirtualFC`); `serial_update_rate_hz` None:
@@ -189,7 +193,12 @@ class VirtualFcSession:
         it is (115200). `pilot`: a safety pilot's simulated radio is the receiver (`radio`),
         else the OBC flies alone with `failsafe_procedure` (and arms by arming requests:
         `configure fsp` puts ARM on AUX1, which the FC holds). `arm_switch`: with a pilot,
-        ARM on that AUX channel of the radio (default AUX1)."""
+        ARM on that AUX channel of the radio (default AUX1). `control`: who flies as
+        `configure fsp` is told (default: from `pilot`, the switch AUX2 at 1700-2100).
+        `configuration`: a planner that configures the FC instead of `configure fsp` (a
+        user's backup), with FSP on UART`fsp_uart`."""
+        if control is not None:
+            pilot = isinstance(control, SafetyPilot)
         if arm_switch is not None and not pilot:
             raise ValueError("the OBC alone arms by arming requests: ARM is AUX1, the FC's")
         self.fc = VirtualFC(binary, workdir, port_base=port_base, board=board)
@@ -203,6 +212,9 @@ class VirtualFcSession:
         self.cmd_timeout_ms = cmd_timeout_ms
         self.failsafe_procedure = failsafe_procedure
         self.arm_switch = (arm_switch or PILOT_ARM) if pilot else None
+        self.control = control
+        self.configuration = configuration
+        self.fsp_uart = fsp_uart
         self._motion = motion
         self._feeder: MotionFeeder | None = None
         self.radio: SimulatedRadio | None = None
@@ -221,16 +233,20 @@ class VirtualFcSession:
 
     @property
     def fsp_url(self) -> str:
-        return self.fc.uart_url(FSP_UART)
+        return self.fc.uart_url(self.fsp_uart)
 
     def planner(self) -> Planner:
         """`configure fsp` as this virtual FC is flown, plus what a simulator without an
-        airframe needs (`_virtual_airframe`)."""
-        control: SafetyPilot | ObcOnly = ObcOnly(self.failsafe_procedure)
-        if self.pilot:
+        airframe needs (`_virtual_airframe`); or the `configuration` given."""
+        if self.configuration is not None:
+            return self.configuration
+        control: Control = ObcOnly(self.failsafe_procedure)
+        if self.control is not None:
+            control = self.control
+        elif self.pilot:
             control = SafetyPilot(PILOT_OVERRIDE, SWITCH_ON_US)
         planner = fsp_planner(
-            FSP_UART,
+            self.fsp_uart,
             self._baud,
             self.rate_hz,
             self.time_reply,
