@@ -9,7 +9,9 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from wftool.fc.msp import MspClient
+import pytest
+
+from wftool.fc.msp import MspClient, MspError
 from wftool.fsp import ArmingAction, Authority, AuthorityExit, FspReader, UplinkFlag, UplinkStatus
 from wftool.sitl.radio import EngagingPilot
 from wftool.sitl.session import PILOT_OVERRIDE, Motion, VirtualFcSession
@@ -143,5 +145,38 @@ def test_under_a_pilot_the_obc_steers_only_once_engaged_and_again_only_if_engage
             pilot.engage()
             assert obc.run_until(lambda o: o.roll == 1300, 5.0)
             assert obc.status is not None and obc.status.authority is Authority.ENGAGED
+        finally:
+            obc.close()
+
+
+def test_msp_set_raw_rc_is_refused_and_counted_while_the_uplink_owns_the_receiver(
+    sitl_binary: Path, tmp_path: Path
+) -> None:
+    """A second program on the other MSP port cannot steer past the uplink (spec §5): each
+    MSP_SET_RAW_RC gets an error reply and is counted in E3, and the sticks stay the OBC's."""
+    with (
+        VirtualFcSession(sitl_binary, tmp_path, motion=Motion(), port_base=None) as fc,
+        MspClient.open(fc.msp_url) as msp,
+    ):
+        obc = Obc(fc.fsp_url)
+        try:
+            obc.rc = (1300, 1500, 1500, 1000, 1500, 1500)
+            steering = obc.run_until(lambda o: o.roll == 1300, 10.0)
+            assert steering and obc.status is not None, obc.status
+            before = obc.status.msp_rc_refused
+            assert before is not None
+            tries = 5
+            rolls: list[int | None] = []
+            for _ in range(tries):
+                with pytest.raises(MspError, match="MSP_SET_RAW_RC"):
+                    msp.set_raw_rc([1700, 1700, 1700, 1700, 2000, 2000, 2000, 2000])
+            counted = obc.run_until(
+                lambda o: o.status is not None and (o.status.msp_rc_refused or 0) >= before + tries,
+                5.0,
+                each=lambda: rolls.append(obc.roll),
+            )
+            assert counted, obc.status
+            assert obc.status.msp_rc_refused == before + tries
+            assert msp.rc()[0] == 1300 and 1700 not in rolls
         finally:
             obc.close()
