@@ -21,9 +21,9 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("extras", "progress", "interrupts", "display"),
     ("link",),  # the byte transport and the CRC both protocols share
     ("fsp",),  # the OBC library
-    ("fc", "firmware"),
-    ("flash", "recording", "sitl"),
-    ("verify", "ros2"),  # ros2: the live ROS 2 node
+    ("fc",),
+    ("firmware", "recording", "sitl"),  # firmware: MCU names per Betaflight version (fc)
+    ("flash", "verify", "ros2"),  # ros2: the live ROS 2 node
     ("analysis", "bench"),
     ("doctor", "paper"),
     ("cli",),

@@ -12,20 +12,20 @@ from tests.conftest import fc_settings
 from wftool.errors import ParameterError
 from wftool.fc.cli_session import CliSession
 from wftool.fc.fsp_setup import (
-    FSP_FUNCTION,
     AuxRange,
     ObcOnly,
     SafetyPilot,
     SerialPortConfig,
     failsafe_outlook,
     fsp_planner,
-    function_names,
     override_mask,
     parse_channel,
     parse_range,
 )
 from wftool.fc.msp import FEATURE_RX_MSP, FEATURE_RX_UDP, RECEIVER_FEATURES, MspClient
-from wftool.fc.params import apply_plan, parse_cli_script, plan_from_assignments
+from wftool.fc.params import apply_plan
+from wftool.fc.plan import parse_cli_script, plan_from_assignments
+from wftool.fc.versions import version_of
 from wftool.sitl.process import VirtualFC
 
 OBC_ALONE = ObcOnly("drop")
@@ -101,19 +101,18 @@ def test_patched_firmware_gets_fully_configured(virtual_fc: VirtualFC, tmp_path:
         session.exit()
         virtual_fc.wait_back()
     config = SerialPortConfig.parse(uart2)
-    assert (config.functions, config.msp_baud) == (FSP_FUNCTION, 2_000_000)
     with MspClient.open(virtual_fc.url) as msp:
+        version = version_of(msp.identify())
         assert msp.features() & FEATURE_RX_MSP
+    assert (config.functions, config.msp_baud) == (version.fsp_function, 2_000_000)
     opened = f"bind port {virtual_fc.port_base + 2} for UART2".encode()
     assert opened in virtual_fc.log_path.read_bytes()  # FSP opened it
 
 
-def test_serial_line_round_trip_and_function_names() -> None:
+def test_serial_line_round_trip() -> None:
     line = "serial UART3 66 115200 57600 0 230400"
     config = SerialPortConfig.parse(line)
     assert config.command() == line
-    assert function_names(66) == "GPS+RX_SERIAL"
-    assert function_names(FSP_FUNCTION | 1 << 30) == "FSP+bit 30"
 
 
 def test_serial_update_rate_can_be_chosen(virtual_fc: VirtualFC, tmp_path: Path) -> None:

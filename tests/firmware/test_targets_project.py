@@ -65,8 +65,16 @@ def test_unknown_target_lists_the_known_ones(project):
 def test_board_with_the_wrong_mcu_is_refused(project):
     header = project.config_dir / "configs" / "SPEEDYBEEF7V3" / "config.h"
     header.write_text("#define FC_TARGET_MCU STM32F405\n#define BOARD_NAME SPEEDYBEEF7V3\n")
-    with pytest.raises(UsageError, match="STM32F7X2 board"):
+    with pytest.raises(UsageError, match="STM32F722 board"):
         resolve_target(project, "speedybeef7v3")
+
+
+@pytest.mark.parametrize("name", ["STM32F7X2", "STM32F722"])
+def test_the_board_mcu_by_either_versions_name(project, name):
+    """2025.12 names the F722 target STM32F7X2, 2026.6 by its part (#15470)."""
+    header = project.config_dir / "configs" / "SPEEDYBEEF7V3" / "config.h"
+    header.write_text(f"#define FC_TARGET_MCU {name}\n#define BOARD_NAME SPEEDYBEEF7V3\n")
+    assert resolve_target(project, "speedybeef7v3").mcu == name
 
 
 def test_flags_become_defines():

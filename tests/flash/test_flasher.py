@@ -32,7 +32,8 @@ from tests.flash.virtual_board import SPEEDYBEEF7V3, VirtualBoard
 from wftool.cli import fc as fc_commands
 from wftool.errors import FlashError, UsageError
 from wftool.fc.msp import BoardInfo, BuildInfo, MspClient
-from wftool.fc.params import apply_plan, plan_from_assignments
+from wftool.fc.params import apply_plan
+from wftool.fc.plan import plan_from_assignments
 from wftool.firmware import BuildResult
 from wftool.firmware.manifest import BuildFlags, Manifest
 from wftool.firmware.project import PROJECT_ENV

@@ -20,7 +20,7 @@ from wftool.flash.image import (
     write_regions,
 )
 
-F7X2 = MCU_FLASH["STM32F7X2"]
+F7X2 = MCU_FLASH["STM32F722"]
 
 
 def test_f722_bootloader_layout_string_matches_the_table() -> None:

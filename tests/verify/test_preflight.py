@@ -10,9 +10,8 @@ from pathlib import Path
 import pytest
 
 from tests.conftest import run_cli
+from wftool.fc.versions import BETAFLIGHT_2025_12, BETAFLIGHT_2026_6
 from wftool.verify.preflight import (
-    ARM_SWITCH_FLAG,
-    RX_FAILSAFE_FLAG,
     ModeRange,
     PreflightReport,
     Snapshot,
@@ -23,7 +22,7 @@ from wftool.verify.preflight import (
 
 
 def status_ex(boxes: int, arming: int, extra_boxes: bytes = b"") -> bytes:
-    """An MSP_STATUS_EX payload as Betaflight 2025.12's msp.c writes it."""
+    """An MSP_STATUS_EX payload as Betaflight 2025.12's msp.c writes it (29 arming flags)."""
     head = struct.pack("<HHHIBHBB", 125, 0, 0x21, boxes & 0xFFFFFFFF, 0, 5, 4, 0)
     return (
         head
@@ -35,9 +34,10 @@ def status_ex(boxes: int, arming: int, extra_boxes: bytes = b"") -> bytes:
 
 
 def test_status_ex_boxes_past_32_and_the_arming_flags() -> None:
-    boxes, arming = parse_status_ex(status_ex(0x10001, RX_FAILSAFE_FLAG, b"\x02"))
+    rx_loss = BETAFLIGHT_2025_12.rx_failsafe_flag
+    boxes, arming, count = parse_status_ex(status_ex(0x10001, rx_loss, b"\x02"))
     assert boxes == 0x10001 | 0x2 << 32
-    assert arming == RX_FAILSAFE_FLAG
+    assert (arming, count) == (rx_loss, 29)
 
 
 def test_mode_ranges_in_microseconds_unused_slots_left_out() -> None:
@@ -50,9 +50,13 @@ def test_the_obc_commands_far_from_the_pilot() -> None:
     assert offset_rc((1900, 1100, 1600, 2000)) == (1600, 1400, 1300, 2000)
 
 
-def test_only_the_arm_switch_left_means_it_can_arm() -> None:
-    ready = Snapshot(0.0, (1500,) * 8, False, False, False, False, ARM_SWITCH_FLAG)
-    blocked = Snapshot(0.0, (1500,) * 8, False, False, False, True, RX_FAILSAFE_FLAG)
+def test_the_arm_switch_flag_is_the_last_of_each_version() -> None:
+    # 2026.6 put AUTOPILOT_SW where 2025.12 had ARM_SWITCH (runtime_config.h)
+    assert BETAFLIGHT_2025_12.arm_switch_flag == 1 << 28
+    assert BETAFLIGHT_2026_6.arm_switch_flag == 1 << 29
+    assert BETAFLIGHT_2026_6.arming_flag_names(1 << 28 | 1 << 2) == "RXLOSS+AUTOPILOT_SW"
+    ready = Snapshot(0.0, (1500,) * 8, False, False, False, False, 1 << 29, 0)
+    blocked = Snapshot(0.0, (1500,) * 8, False, False, False, True, 1 << 2, 1 << 2)
     assert ready.can_arm and not blocked.can_arm
 
 

@@ -11,12 +11,10 @@ from dataclasses import dataclass, replace
 from wftool.errors import CliCommandError, ParameterError, ProtocolError
 from wftool.fc.cli_session import CliSession
 from wftool.fc.msp import FEATURE_RX_MSP, RECEIVER_FEATURES
-from wftool.fc.params import Command, FeatureChange, Plan, Planner, set_command
+from wftool.fc.plan import Command, FeatureChange, Plan, Planner, set_command
+from wftool.fc.versions import BetaflightVersion
 from wftool.fsp.schedule import DEFAULT_RATE_HZ
 
-FSP_FUNCTION = 1 << 19
-MSP_FUNCTION = 1 << 0
-RX_SERIAL_FUNCTION = 1 << 6
 CMD_TIMEOUT_MS_DEFAULT = 50
 CMD_TIMEOUT_MS_RANGE = (10, 150)
 """`fsp_cmd_timeout_ms` (spec §11): the firmware's default and range."""
@@ -28,14 +26,6 @@ ACC_RPM_FILTER_DEFAULTS = {
     "acc_rpm_filter_fade_range_hz": "50",
     "acc_rpm_filter_q": "500",
 }
-SERIAL_FUNCTION_NAMES = {
-    1 << 0: "MSP", 1 << 1: "GPS", 1 << 2: "FRSKY_HUB", 1 << 3: "HOTT", 1 << 4: "LTM",
-    1 << 5: "SMARTPORT", 1 << 6: "RX_SERIAL", 1 << 7: "BLACKBOX", 1 << 9: "MAVLINK",
-    1 << 10: "ESC_SENSOR", 1 << 11: "SMARTAUDIO", 1 << 12: "IBUS", 1 << 13: "TRAMP",
-    1 << 14: "RCDEVICE", 1 << 15: "LIDAR_TF", 1 << 16: "FRSKY_OSD", 1 << 17: "VTX_MSP",
-    1 << 18: "GIMBAL", FSP_FUNCTION: "FSP",
-}  # fmt: skip
-"""`serialPortFunction_e` (io/serial.h), only to name what FSP replaces."""
 
 
 @dataclass(frozen=True)
@@ -66,23 +56,18 @@ class SerialPortConfig:
         return f"serial {self.port} {self.functions} {bauds}"
 
 
-def function_names(mask: int) -> str:
-    return "+".join(
-        SERIAL_FUNCTION_NAMES.get(1 << bit, f"bit {bit}") for bit in range(32) if mask >> bit & 1
-    )
-
-
 AUX_CHANNELS = 14
 """Betaflight's AUX channels (MAX_AUX_CHANNEL_COUNT: 18 channels, 4 of them sticks)."""
 MODE_ARM = 0
 MODE_MSP_OVERRIDE = 50
 MODE_NAMES = {
-    0: "ARM", 1: "ANGLE", 2: "HORIZON", 3: "ALTHOLD", 5: "HEADFREE", 6: "PASSTHRU",
-    13: "BEEPER", 19: "OSD DISABLE", 26: "BLACKBOX", 27: "FAILSAFE", 28: "AIR MODE",
-    35: "FLIP OVER AFTER CRASH", 36: "PREARM", 39: "VTX PIT MODE", 46: "GPS RESCUE",
-    50: "MSP OVERRIDE", 53: "LAUNCH CONTROL",
+    0: "ARM", 1: "ANGLE", 2: "HORIZON", 3: "ALTHOLD", 5: "MAG", 6: "HEADFREE", 11: "POS HOLD",
+    12: "PASSTHRU", 13: "BEEPER", 19: "OSD DISABLE", 26: "BLACKBOX", 27: "FAILSAFE",
+    28: "AIR MODE", 35: "FLIP OVER AFTER CRASH", 36: "PREARM", 39: "VTX PIT MODE",
+    46: "GPS RESCUE", 49: "LAUNCH CONTROL", 50: "MSP OVERRIDE", 53: "READY",
 }  # fmt: skip
-"""Permanent mode ids (msp_box.c) of the `aux` command, for messages."""
+"""Permanent mode ids (msp_box.c; permanent across versions) of the `aux` command, for
+messages."""
 STICK_FUNCTIONS = 4
 """rcmap's first four entries: roll, pitch, yaw, throttle."""
 FAILSAFE_PROCEDURES = {"drop": "DROP", "land": "AUTO-LAND", "gps-rescue": "GPS-RESCUE"}
@@ -208,8 +193,8 @@ def fsp_planner(
     `serial_update_rate_hz` None sets the highest the FC allows; `radio_feature` makes that
     receiver feature the FC's radio first (the virtual FC's `FEATURE_RX_UDP`)."""
 
-    def plan(session: CliSession) -> Plan:
-        commands, notes = _fsp_port(session, uart, baud, control)
+    def plan(session: CliSession, version: BetaflightVersion) -> Plan:
+        commands, notes = _fsp_port(session, version, uart, baud, control)
         try:
             session.get("dshot_bidir")
             commands.append(set_command("dshot_bidir", "ON"))
@@ -237,9 +222,16 @@ def fsp_planner(
 
 
 def _fsp_port(
-    session: CliSession, uart: int, baud: int, control: Control
+    session: CliSession, version: BetaflightVersion, uart: int, baud: int, control: Control
 ) -> tuple[list[Command], list[str]]:
-    """The `serial` lines that give UART`uart` to FSP alone, and what they replace."""
+    """The `serial` lines that give UART`uart` to FSP alone (FSP's function bit and baud
+    rates as VERSION has them), and what they replace."""
+    if baud not in version.baud_rates or baud > version.fsp_baud_max:
+        rates = ", ".join(str(rate) for rate in version.baud_rates if rate <= version.fsp_baud_max)
+        raise ParameterError(
+            f"{baud} is not a baud rate of an FSP port on {version.name} ({rates})"
+        )
+    fsp, msp = version.fsp_function, version.serial_functions["MSP"]
     ports = {
         config.port: config
         for config in map(
@@ -252,26 +244,23 @@ def _fsp_port(
     commands: list[Command] = []
     notes: list[str] = []
     for config in ports.values():
-        if config.port != target and config.functions & FSP_FUNCTION:
-            commands.append(
-                Command(replace(config, functions=config.functions & ~FSP_FUNCTION).command())
-            )
+        if config.port != target and config.functions & fsp:
+            commands.append(Command(replace(config, functions=config.functions & ~fsp).command()))
             notes.append(f"FSP moves from {config.port} to {target}")
-    if not any(c.functions & MSP_FUNCTION for c in ports.values() if c.port != target):
+    if not any(c.functions & msp for c in ports.values() if c.port != target):
         raise ParameterError(
             f"{target} is the FC's only MSP port; giving it to FSP would lock out MSP and the CLI"
         )
-    if isinstance(control, SafetyPilot) and ports[target].functions & RX_SERIAL_FUNCTION:
+    receiver = version.serial_functions["RX_SERIAL"]
+    if isinstance(control, SafetyPilot) and ports[target].functions & receiver:
         raise ParameterError(
             f"{target} carries the receiver (RX_SERIAL), the safety pilot's radio: give FSP "
             "another UART"
         )
-    replaced = ports[target].functions & ~FSP_FUNCTION
+    replaced = ports[target].functions & ~fsp
     if replaced:
-        notes.append(f"{target}: FSP replaces {function_names(replaced)} on this port")
-    commands.append(
-        Command(replace(ports[target], functions=FSP_FUNCTION, msp_baud=baud).command())
-    )
+        notes.append(f"{target}: FSP replaces {version.function_names(replaced)} on this port")
+    commands.append(Command(replace(ports[target], functions=fsp, msp_baud=baud).command()))
     return commands, notes
 
 

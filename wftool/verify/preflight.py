@@ -35,6 +35,7 @@ from typing import Any, Protocol
 
 from wftool.errors import PortError, ProtocolError
 from wftool.fc.msp import FEATURE_RX_MSP, MspClient
+from wftool.fc.versions import version_of
 from wftool.fsp.decoder import StateDecoder
 from wftool.fsp.encoder import CommandSender
 from wftool.fsp.packets import UplinkFlag, UplinkStatus
@@ -52,10 +53,6 @@ MSP_STATUS_EX = 150
 BOX_ARM = 0
 BOX_FAILSAFE = 27
 BOX_MSP_OVERRIDE = 50
-RX_FAILSAFE_FLAG = 1 << 2
-"""ARMING_DISABLED_RX_FAILSAFE: the FC's receiver has no signal (the OSD's RXLOSS)."""
-ARM_SWITCH_FLAG = 1 << 28
-"""ARMING_DISABLED_ARM_SWITCH: the ARM switch was on while arming was disabled."""
 STICKS = 4
 """MSP_RC's first channels: roll, pitch, yaw, throttle."""
 FAILSAFE_LANDING = 2
@@ -143,15 +140,19 @@ class Snapshot:
     """RXLOSS: the arming disable flag RX_FAILSAFE."""
     arming_flags: int
     """Betaflight's arming disable flags (`armingDisableFlags_e`)."""
+    arming_blockers: int
+    """The arming disable flags but the ARM switch's own (which only says the switch was on
+    while the others held)."""
 
     @property
     def can_arm(self) -> bool:
         """Nothing but the ARM switch itself keeps the FC from arming."""
-        return self.arming_flags & ~ARM_SWITCH_FLAG == 0
+        return self.arming_blockers == 0
 
 
-def parse_status_ex(payload: bytes) -> tuple[int, int]:
-    """MSP_STATUS_EX → (the active-box bits, in MSP_BOXIDS order; the arming disable flags)."""
+def parse_status_ex(payload: bytes) -> tuple[int, int, int]:
+    """MSP_STATUS_EX → (the active-box bits, in MSP_BOXIDS order; the arming disable flags;
+    how many such flags the firmware has)."""
     if len(payload) < 16:
         raise ProtocolError(f"MSP_STATUS_EX of {len(payload)} bytes")
     (boxes,) = struct.unpack_from("<I", payload, 6)
@@ -159,8 +160,9 @@ def parse_status_ex(payload: bytes) -> tuple[int, int]:
     boxes |= int.from_bytes(payload[16 : 16 + extra], "little") << 32
     if len(payload) < 21 + extra:
         raise ProtocolError(f"MSP_STATUS_EX of {len(payload)} bytes")
+    count = payload[16 + extra]
     (arming,) = struct.unpack_from("<I", payload, 17 + extra)
-    return boxes, arming
+    return boxes, arming, count
 
 
 @dataclass(frozen=True)
@@ -190,6 +192,8 @@ class FcWatcher:
     def __init__(self, msp: MspClient) -> None:
         self._msp = msp
         self._msp_lock = threading.Lock()
+        self.version = version_of(msp.identify())
+        """The FC's Betaflight: where its arming disable flags are."""
         boxes = list(msp.request(MSP_BOXIDS))
         self._bit = {
             box: boxes.index(box)
@@ -220,7 +224,12 @@ class FcWatcher:
                 payload = self.request(MSP_RC)
                 rc = struct.unpack(f"<{len(payload) // 2}H", payload)
                 self._record(rc, boxes, arming)
-                boxes, arming = parse_status_ex(self.request(MSP_STATUS_EX))
+                boxes, arming, count = parse_status_ex(self.request(MSP_STATUS_EX))
+                if count != len(self.version.arming_disable_flags):
+                    raise ProtocolError(
+                        f"the FC has {count} arming disable flags, "
+                        f"{self.version.name} {len(self.version.arming_disable_flags)}"
+                    )
                 self._record(rc, boxes, arming)
         except BaseException as exc:  # reported by the next wait
             self._error = exc
@@ -239,7 +248,8 @@ class FcWatcher:
 
         snapshot = Snapshot(
             time.monotonic(), rc, on(BOX_ARM), on(BOX_MSP_OVERRIDE), on(BOX_FAILSAFE),
-            bool(arming & RX_FAILSAFE_FLAG), arming,
+            bool(arming & self.version.rx_failsafe_flag), arming,
+            arming & ~self.version.arm_switch_flag,
         )  # fmt: skip
         with self._lock:
             self.snapshots.append(snapshot)
@@ -721,10 +731,8 @@ class Preflight:
     def _pilot_arms(self) -> None:
         ready = self.watcher.wait(lambda s: s.can_arm, time.monotonic(), 15.0)
         if ready is None:
-            flags = self.watcher.latest().arming_flags
-            self.report.add(
-                "the pilot arms", f"arming disabled (flags 0x{flags:08x})", "armed", False
-            )
+            flags = self.watcher.version.arming_flag_names(self.watcher.latest().arming_flags)
+            self.report.add("the pilot arms", f"arming disabled ({flags})", "armed", False)
             return
         self.pilot.hold(armed=True)
         armed = self.watcher.wait(lambda s: s.armed, time.monotonic() - 0.01, 10.0)
