@@ -52,31 +52,42 @@ def run_unit_tests(
 ) -> list[UnitTestRun]:
     """Apply the series, check out the test tree, run NAMES (default: the series' tests;
     `everything`: all of them, Betaflight's `make test`)."""
+    require_compilers()
+    tree.ensure_tree(project, resolve_target(project, SITL), allow_dirty=True)
+    patches.apply(project, override="run `wftool patches apply --force`")
+    check_out_tests(project.tree)
+    if everything:
+        names = all_tests(project)
+    chosen = names if names is not None else series_tests(project)
+    return [run_test(project.tree, name) for name in chosen]
+
+
+def tests_of_patch(patch: Path) -> list[str]:
+    """The unit tests a patch file adds or changes (make target names)."""
+    text = patch.read_text(errors="replace")
+    found = re.findall(r"^\+\+\+ b/src/test/unit/(\w+_unittest)\.cc$", text, re.MULTILINE)
+    return sorted({f"test_{name}" for name in found})
+
+
+def require_compilers() -> None:
+    """Betaflight's unit tests build with clang; ToolchainError if it is missing."""
     missing = [c for c in _TEST_COMPILERS if shutil.which(c) is None]
     if missing:
         raise ToolchainError(
             f"Betaflight's unit tests need {' and '.join(missing)} (Debian: clang)"
         )
-    tree.ensure_tree(project, resolve_target(project, SITL), allow_dirty=True)
-    patches.apply(project, override="run `wftool patches apply --force`")
-    _check_out_tests(project.tree)
-    if everything:
-        names = all_tests(project)
-    runs = []
-    for name in names if names is not None else series_tests(project):
-        proc = subprocess.run(
-            ["make", name],
-            cwd=project.tree,
-            capture_output=True,
-            text=True,
-            errors="replace",
-            check=False,
-        )
-        runs.append(UnitTestRun(name, proc.returncode == 0, proc.stdout + proc.stderr))
-    return runs
 
 
-def _check_out_tests(repo: Path) -> None:
+def run_test(repo: Path, name: str) -> UnitTestRun:
+    """`make NAME` (a unit test) in the Betaflight tree REPO."""
+    proc = subprocess.run(
+        ["make", name], cwd=repo, capture_output=True, text=True, errors="replace", check=False
+    )
+    return UnitTestRun(name, proc.returncode == 0, proc.stdout + proc.stderr)
+
+
+def check_out_tests(repo: Path) -> None:
+    """Widen REPO's sparse checkout by the unit tests (src/test, lib/test)."""
     excluded = tree.current_exclusions(repo)
     wanted = excluded - set(TEST_PATHS)
     if wanted != excluded:
