@@ -100,9 +100,7 @@ def test_each_profile_is_its_trees(version: BetaflightVersion) -> None:
     )
     assert api == version.api
     serial_h = _show(version, "src/main/io/serial.h")
-    upstream = {
-        int(bit) for bit in re.findall(r"FUNCTION_\w+\s*=\s*\(1 << (\d+)\)", serial_h)
-    }
+    upstream = {int(bit) for bit in re.findall(r"FUNCTION_\w+\s*=\s*\(1 << (\d+)\)", serial_h)}
     ours = {bit.bit_length() - 1 for name, bit in version.serial_functions.items() if name != "FSP"}
     assert ours == upstream
     assert version.fsp_function.bit_length() - 1 not in upstream
@@ -127,9 +125,9 @@ def test_battery_profiles_and_removed_settings_are_the_trees(version: Betaflight
     assert not set(version.removed_settings) & set(sections)
     before = VERSIONS[VERSIONS.index(version) - 1] if VERSIONS.index(version) else None
     if before is not None:
-        assert set(version.removed_settings) <= set(
-            _settings_of(before)
-        ), "a removed setting the version before did not have"
+        assert set(version.removed_settings) <= set(_settings_of(before)), (
+            "a removed setting the version before did not have"
+        )
 
 
 def _settings_of(version: BetaflightVersion) -> set[str]:
