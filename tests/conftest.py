@@ -4,7 +4,8 @@ virtual flight controller (the patched Betaflight SITL).
 The firmware fixtures clone this repository's HEAD (commit before running them locally),
 fetch the pinned Betaflight tree and build once per session; they skip, with the reason,
 only where the Betaflight repository cannot be reached. WFTOOL_SITL_BINARY points the SITL
-tests at an existing binary instead. Every virtual FC a test starts takes a free port base
+tests at an existing binary instead (WFTOOL_PREVIOUS_SITL_BINARY the compatibility tests'
+FC of the previous pin). Every virtual FC a test starts takes a free port base
 (`free_port_base()`), so test sessions, benchmarks and a `wftool sitl` run side by side.
 """
 
@@ -103,7 +104,10 @@ def last_commit_pinning(version: BetaflightVersion) -> str:
 def previous_sitl(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The SITL of the previous pin (`PREVIOUS_PIN` with its series, from the last commit
     that pinned it), built by this wftool in a clone of its own, once per session; while HEAD
-    still pins it, the session's own (`sitl_binary`): the very same firmware."""
+    still pins it, the session's own (`sitl_binary`): the very same firmware.
+    WFTOOL_PREVIOUS_SITL_BINARY points at an existing one instead."""
+    if path := os.environ.get("WFTOOL_PREVIOUS_SITL_BINARY"):
+        return Path(path)
     request.getfixturevalue("fresh_clone")  # skips, saying why, where Betaflight is unreachable
     commit = last_commit_pinning(PREVIOUS_PIN)
     head = _git(REPO, "rev-parse", "HEAD")

@@ -110,3 +110,17 @@ def test_a_board_on_the_previous_pin_works_and_its_backup_restores_onto_the_pin(
         assert serial_line(new, FSP_UART)[2:4] == [str(current.fsp_function), "2000000"]
         assert fc_settings(new, BATTERY[0]) == {BATTERY[0]: BATTERY[1]}
         verify(capsys, new)
+
+
+def test_preflight_on_the_previous_pin(
+    previous_sitl: Path, sitl_binary: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The OBC alone, armed: its arming flags are the previous version's (ARM_SWITCH moved
+    from bit 28 to 29 in 2026.6)."""
+    if previous_sitl == sitl_binary:
+        pytest.skip("the previous pin is still the pin: tests/verify/test_preflight.py runs it")
+    code, out, err = run_cli(
+        capsys, "preflight", "--sitl", "--arm", "--obc-only", "--binary", str(previous_sitl)
+    )
+    assert code == 0, out + err
+    assert "the board fails safe" in out and "FAIL" not in out

@@ -1,6 +1,6 @@
 """The upstream canary (`wftool patches check --against REF`) against real Betaflight trees:
-a series made up for the test meets a release it was not written on (each outcome once), and
-the project's own series its own pin (everything applies, builds and passes)."""
+a series made up for the test, written on the pin, meets another release — each outcome
+once: already upstream, applies, conflicts, left out; builds or not; a unit test run."""
 
 from __future__ import annotations
 
@@ -18,6 +18,8 @@ from wftool.firmware.project import Project
 
 VERSION_H = "src/main/build/version.h"
 PROTOCOL_H = "src/main/msp/msp_protocol.h"
+MATHS_TEST = "src/test/unit/maths_unittest.cc"
+README = "README.md"
 NOWHERE = "src/main/canary_nowhere.c"
 
 
@@ -30,10 +32,11 @@ def git(cwd: Path, *args: str) -> str:
 
 @pytest.fixture
 def made_up(fresh_clone: Project, tmp_path: Path) -> tuple[Project, str]:
-    """A clone of this repository whose series is four patches written on its pin, and a
+    """A clone of this repository whose series is five patches written on its pin, and a
     release that is not the pin: one already there (its version.h), one that applies (a new
-    file), one that conflicts (another MSP API version), one git cannot even merge (a file
-    neither the pin nor the release has: the series does not apply to its own pin there)."""
+    file, a comment in a unit test), one that conflicts (the release schedule in the
+    README), one that breaks the build, one git cannot even merge (a file neither the pin
+    nor the release has: the series does not apply to its own pin there)."""
     project = Project(tmp_path / "wftool")
     git(tmp_path, "clone", "-q", str(REPO), str(project.root))
     pin = tree.pinned_commit(project)
@@ -45,7 +48,7 @@ def made_up(fresh_clone: Project, tmp_path: Path) -> tuple[Project, str]:
         tree.ensure_commit(upstream, commit)
     work = tmp_path / "work"  # the pin's files, and one no Betaflight has
     git(tmp_path, "init", "-q", str(work))
-    for path in (VERSION_H, PROTOCOL_H):
+    for path in (VERSION_H, PROTOCOL_H, MATHS_TEST, README):
         (work / path).parent.mkdir(parents=True, exist_ok=True)
         (work / path).write_text(git(upstream, "cat-file", "-p", f"{pin}:{path}") + "\n")
     (work / NOWHERE).write_text("int canary;\n")
@@ -63,9 +66,12 @@ def made_up(fresh_clone: Project, tmp_path: Path) -> tuple[Project, str]:
         VERSION_H,
         git(upstream, "cat-file", "-p", f"{ref.commit}:{VERSION_H}") + "\n",
     )
-    commit("a new file", "src/main/canary_new.c", "int fresh;\n")
-    protocol = (work / PROTOCOL_H).read_text()  # the API minor version: another in REF
-    commit("conflicts", PROTOCOL_H, re.sub(r"(API_VERSION_MINOR\s+)\d+", r"\g<1>99", protocol))
+    (work / "src/main/canary_new.c").write_text("int fresh;\n")
+    git(work, "add", "src/main/canary_new.c")
+    commit("applies", MATHS_TEST, (work / MATHS_TEST).read_text() + "// canary\n")
+    schedule = (work / README).read_text()  # every release rewrites it
+    commit("conflicts", README, re.sub(r"(?m)^\| Date .*$", "| canary |", schedule, count=1))
+    commit("breaks the build", PROTOCOL_H, (work / PROTOCOL_H).read_text() + '#error "canary"\n')
     commit("cannot merge", NOWHERE, "int canary = 1;\n")
     for old in project.patches_dir.glob("*.patch"):
         old.unlink()
@@ -73,17 +79,27 @@ def made_up(fresh_clone: Project, tmp_path: Path) -> tuple[Project, str]:
     return project, ref.release
 
 
-def test_each_outcome_of_a_patch_on_another_release(made_up: tuple[Project, str]) -> None:
+@pytest.mark.slow
+def test_each_outcome_of_a_patch_on_another_release(
+    made_up: tuple[Project, str], tmp_path: Path
+) -> None:
     project, ref = made_up
-    report = check_against(project, ref, build=False)
+    report = check_against(project, ref, workdir=tmp_path / "canary")
     assert report.version == ref
     outcome = [(c.applied, c.conflicts, c.taken, c.built) for c in report.checks]
     assert outcome == [
         (Applied.UPSTREAM, (), False, None),
-        (Applied.CLEAN, (), False, None),
-        (Applied.CONFLICT, (PROTOCOL_H,), True, None),
+        (Applied.CLEAN, (), False, True),
+        (Applied.CONFLICT, (README,), True, True),  # the series' version taken: it builds
+        (report.checks[3].applied, (), False, False),
         (Applied.CONFLICT, (NOWHERE,), False, None),
     ]
+    assert report.checks[3].applied in (Applied.CLEAN, Applied.THREE_WAY)
+    [maths] = report.checks[1].tests
+    assert (maths.name, maths.passed) == ("test_maths_unittest", True)
+    assert re.fullmatch(
+        rf'{PROTOCOL_H}:\d+: error: #error "canary"', report.checks[3].build_error or ""
+    )
     assert not report.ok
 
 
@@ -96,27 +112,15 @@ def test_the_command_prints_the_table_and_fails(
         "--project", str(project.root),
     )  # fmt: skip
     assert code == 1
-    rows = [line.split(" | ")[1:4] for line in out.splitlines() if line.startswith("| 000")]
+    rows = [line[2:-2].split(" | ")[1:] for line in out.splitlines() if line.startswith("| 000")]
+    assert rows[3][0] in ("applies", "3-way")
     assert rows == [
-        ["already upstream", " ", "—"],
-        ["applies", " ", "—"],
-        ["conflicts", PROTOCOL_H, "—"],
-        ["conflicts, left out", NOWHERE, "—"],
+        ["already upstream", " ", "—", "—"],
+        ["applies", " ", "—", "—"],
+        ["conflicts", README, "—", "—"],
+        [rows[3][0], " ", "—", "—"],
+        ["conflicts, left out", NOWHERE, "—", "—"],
     ]
     assert err.strip().splitlines()[-1] == (
         f"error: the series does not carry over to {ref} as it is (table above)"
     )
-
-
-@pytest.mark.slow
-def test_the_series_on_its_own_pin_applies_builds_and_passes(
-    fresh_clone: Project, tmp_path: Path
-) -> None:
-    report = check_against(fresh_clone, tree.pinned_commit(fresh_clone), workdir=tmp_path / "c")
-    assert report.ok, [c for c in report.checks if not (c.built and c.applied is Applied.CLEAN)]
-    assert all(c.applied is Applied.CLEAN and c.built for c in report.checks)
-    tests = [run.name for c in report.checks for run in c.tests]
-    assert "test_fsp_unittest" in tests and all(
-        run.passed for c in report.checks for run in c.tests
-    )
-    assert not (fresh_clone.tree / ".git").exists() or tree.dirty_paths(fresh_clone) == []

@@ -69,7 +69,7 @@ def migrate(plan: Plan, target: BetaflightVersion) -> Migration:
             if name in target.removed_settings:
                 changes.append(
                     f"  {command.where}`{command.text}` dropped: {target.name} has no {name} "
-                    f"({target.removed_settings[name]})"
+                    f"— {target.removed_settings[name]}"
                 )
                 continue
             if (
