@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import enum
 import re
+import shutil
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -112,13 +113,13 @@ def check_against(
     """Apply the project's series to REF (tag, branch or commit id of the Betaflight repository)
     in WORKDIR (default: a temporary directory, removed afterwards), patch by patch: apply,
     and (`build`) build the SITL and run the patch's unit tests."""
-    series = patches.series(project)
-    if not series:
+    if not patches.series(project):
         raise UsageError(f"no patch series in {project.patches_dir}")
     if build:
         unittests.require_compilers()
     compiler = toolchain.host_toolchain()
     with _scratch(workdir) as scratch:
+        series = _snapshot(project, scratch / "series")
         repo = scratch / "betaflight"
         commit = _fetch(project, repo, ref)
         _series_objects(project, repo, series, log)
@@ -146,6 +147,16 @@ def check_against(
             log(_line(check))
             report.checks.append(check)
         return report
+
+
+def _snapshot(project: Project, directory: Path) -> list[patches.Patch]:
+    """The series as it is now, copied: what the run checks whatever patches/ becomes meanwhile."""
+    directory.mkdir()
+    copies = []
+    for patch in patches.series(project):
+        shutil.copyfile(patch.path, directory / patch.name)
+        copies.append(patches.Patch(directory / patch.name, patch.sha256))
+    return copies
 
 
 def _series_objects(project: Project, repo: Path, series: list[patches.Patch], log: Log) -> None:
