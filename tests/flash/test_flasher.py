@@ -325,6 +325,25 @@ def test_default_firmware_is_the_newest_build_for_this_board(tmp_path: Path) -> 
     assert find_manifest(tmp_path / "nothing", board) is None
 
 
+@pytest.mark.parametrize("built_for", ["STM32F7X2", "STM32F722"])
+def test_a_board_of_either_versions_mcu_name_takes_a_build_of_the_other(
+    tmp_path: Path, built_for: str
+) -> None:
+    """2025.12 reports the F722 target as STM32F7X2, 2026.6 as STM32F722 (#15470): the same
+    part, so a board on either takes a build of either; another part is still refused."""
+    hex_path = firmware_hex(tmp_path / "fw.hex", BuildInfo("Jan  1 2026", "00:00:00", "0000000"))
+    manifest = _manifest(tmp_path / "build" / "sb", hex_path, mcu=built_for)
+    for reported in ("STM32F7X2", "STM32F722"):
+        board = BoardInfo("S7X2", 0, 0, reported, "", "", 0)  # no board name: by the MCU
+        assert find_manifest(tmp_path / "build", board) == Manifest.load(manifest)
+        firmware = resolve_firmware(manifest, None, board)
+        assert firmware.compatibility_problems(board) == []
+        assert firmware.mcu_flash(board).config_address == 0x0800_4000
+    other = BoardInfo("S405", 0, 0, "STM32F405", "", "", 0)
+    problems = resolve_firmware(manifest, None, other).compatibility_problems(other)
+    assert problems == [f"built for {built_for}, the FC is STM32F405"]
+
+
 def test_bad_manifest_is_a_usage_error(tmp_path: Path) -> None:
     path = tmp_path / "manifest.json"
     path.write_text('{"target": "X"}')
