@@ -11,9 +11,9 @@ from pathlib import Path
 import pytest
 
 from tests.conftest import run_cli
-from tests.fc.stand_in import msp_stand_in
+from tests.fc.stand_in import identity_replies, msp_stand_in
 from wftool.errors import UnsupportedFirmware
-from wftool.fc.msp import ApiVersion, BoardInfo, BuildInfo, Cmd, FcIdentity
+from wftool.fc.msp import ApiVersion, BoardInfo, BuildInfo, FcIdentity
 from wftool.fc.versions import (
     BETAFLIGHT_2025_12,
     BETAFLIGHT_2026_6,
@@ -146,14 +146,7 @@ def test_info_on_an_unknown_firmware_says_so_in_one_line_exit_2(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
     """A STAND-IN answering MSP as upstream master does (2026.12.0, API 1.49)."""
-    replies = {
-        Cmd.API_VERSION: bytes([0, 1, 49]),
-        Cmd.FC_VARIANT: b"BTFL",
-        Cmd.FC_VERSION: bytes([26, 12, 0, 9]) + b"2026.12.0",
-        Cmd.BOARD_INFO: b"SITL" + bytes(4) + b"\x04SITL\x00\x00" + bytes(32) + b"\x00",
-        Cmd.BUILD_INFO: b"Jan  1 202600:00:00abcdef0",
-    }
-    with msp_stand_in(lambda cmd: replies.get(Cmd(cmd), b"")) as url:
+    with msp_stand_in(identity_replies("2026.12.0", (1, 49))) as url:
         code, out, err = run_cli(capsys, "info", "--port", url)
     assert code == 2
     assert out.startswith("BTFL 2026.12.0 (MSP API 1.49)")

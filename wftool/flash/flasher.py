@@ -17,12 +17,12 @@ from pathlib import Path
 
 from intelhex import IntelHex
 
-from wftool.errors import FlashError, UsageError, WftoolError
+from wftool.errors import FlashError, UnsupportedFirmware, UsageError, WftoolError
 from wftool.fc.board import Board, leave_open_cli
 from wftool.fc.msp import BoardInfo, BuildInfo, FcIdentity, MspClient, RebootMode
 from wftool.fc.params import ChangeReport, apply_plan, configuration_session
 from wftool.fc.plan import plan_from_file
-from wftool.fc.versions import mcu_part, mcu_targets
+from wftool.fc.versions import mcu_part, mcu_targets, version_of
 from wftool.firmware.manifest import FILE_NAME, Manifest
 from wftool.firmware.project import find_project
 from wftool.flash.backend import FlashBackend, Progress
@@ -174,6 +174,13 @@ def flash_firmware(
         leave_open_cli(board, log)
         with MspClient.open(board.url) as msp:
             before = msp.identify()
+        try:
+            version_of(before)  # its backup needs to know it
+        except UnsupportedFirmware as exc:
+            raise UnsupportedFirmware(
+                f"{exc}; so its configuration cannot be backed up: to flash it all the same, "
+                "without a backup, put it in DFU mode and run `wftool flash --no-reboot FIRMWARE`"
+            ) from None
     firmware = resolve_firmware(firmware_path, build_dir, before.board if before else None)
     if firmware.manifest:
         built = firmware.manifest
