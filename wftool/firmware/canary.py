@@ -252,10 +252,15 @@ def _build_and_test(
     check: PatchCheck, command: make.MakeCommand, repo: Path, patch: Path, logs: Path
 ) -> PatchCheck:
     build_error = None
+    log = logs / f"{patch.stem}.build.log"
     try:
-        make.run(command, logs / f"{patch.stem}.build.log")
-    except BuildError as exc:  # its first error, as a path in the tree (the log is kept)
-        build_error = _MAKE_EXIT.sub("", str(exc)).replace(f"{repo}/", "")
+        make.run(command, log)
+    except BuildError:
+        # Which error a parallel make meets first varies from run to run: one job tells.
+        try:
+            make.run(replace(command, jobs=1), log)
+        except BuildError as exc:  # its first error, as a path in the tree (the log is kept)
+            build_error = _MAKE_EXIT.sub("", str(exc)).replace(f"{repo}/", "")
     runs = tuple(unittests.run_test(repo, name) for name in unittests.tests_of_patch(patch))
     return replace(check, built=build_error is None, build_error=build_error, tests=runs)
 
