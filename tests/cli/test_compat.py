@@ -103,7 +103,7 @@ def test_a_board_on_the_previous_pin_works_and_its_backup_restores_onto_the_pin(
             assert "migrated" not in err
         else:
             assert f"written by Betaflight {PREVIOUS_PIN.release}; migrated onto" in err
-            assert f"{GONE[0]} = {GONE[1]}` dropped: {current.name} has no {GONE[0]}" in err
+            assert f"{GONE[0]} = {GONE[1]}` dropped: {current.name} removed it" in err
             assert f"{BATTERY[0]}: per battery profile on {current.name}" in err
         assert (f"FSP is 1 << {current.fsp_function.bit_length() - 1}" in err) == moved
         # the FC itself: FSP on the UART the backup gave it, at its baud, the settings kept

@@ -54,8 +54,8 @@ def test_a_2025_12_backup_onto_2026_6_says_each_change() -> None:
         "`serial UART2 1073741824 2000000 57600 0 115200` (FSP is 1 << 30 on Betaflight 2026.6)",
         "  b.txt:11: `serial UART3 524354 115200 57600 0 115200` → "
         "`serial UART3 1073741890 115200 57600 0 115200` (FSP is 1 << 30 on Betaflight 2026.6)",
-        "  b.txt:13: `set gps_rescue_max_angle = 40` dropped: Betaflight 2026.6 has no "
-        "gps_rescue_max_angle — GPS rescue reworked upstream (#15382)",
+        "  b.txt:13: `set gps_rescue_max_angle = 40` dropped: Betaflight 2026.6 removed it — "
+        "GPS rescue reworked upstream (#15382)",
         "  b.txt:12: vbat_min_cell_voltage: per battery profile on Betaflight 2026.6, set for "
         "the selected battery profile (the first, after `defaults nosave`)",
     ]

@@ -8,7 +8,8 @@ The rules (what differs comes from the two versions' profiles, `wftool.fc.versio
 - `serial` lines keep each port's functions by name: a function bit the FC's version numbers
   otherwise is renumbered (FSP: 1 << 19 on 2025.12, 1 << 30 on 2026.6); a function it does
   not have is refused, naming the line;
-- a `set` of a setting the FC's version removed (a reason is on record) is dropped;
+- a `set` of a setting a version since the script's removed (a reason is on record) is
+  dropped;
 - a setting that is per battery profile on the FC's version but was global where the script
   was written is set where the FC puts a plain `set`: the selected battery profile (the
   first, after `defaults nosave`).
@@ -22,7 +23,7 @@ from dataclasses import dataclass, replace
 
 from wftool.errors import ParameterError
 from wftool.fc.plan import Command, Plan, WrittenBy
-from wftool.fc.versions import BetaflightVersion
+from wftool.fc.versions import VERSIONS, BetaflightVersion
 
 
 @dataclass(frozen=True)
@@ -51,6 +52,12 @@ def migrate(plan: Plan, target: BetaflightVersion) -> Migration:
     changes = [
         f"{source.origin}: written by Betaflight {source.release}; migrated onto {target.name}:"
     ]
+    removed = {  # by every version after the source, up to the FC's
+        name: f"{version.name} removed it — {why}"
+        for version in VERSIONS
+        if source.version.series < version.series <= target.series
+        for name, why in version.removed_settings.items()
+    }
     problems: list[str] = []
     commands: list[Command] = []
     per_battery: list[Command] = []
@@ -66,11 +73,8 @@ def migrate(plan: Plan, target: BetaflightVersion) -> Migration:
             continue
         elif command.verb == "set":
             name = command.assignment()[0].lower()
-            if name in target.removed_settings:
-                changes.append(
-                    f"  {command.where}`{command.text}` dropped: {target.name} has no {name} "
-                    f"— {target.removed_settings[name]}"
-                )
+            if name in removed:
+                changes.append(f"  {command.where}`{command.text}` dropped: {removed[name]}")
                 continue
             if (
                 name in target.battery_profile_settings
