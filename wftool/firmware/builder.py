@@ -191,6 +191,10 @@ def prepare(
         # and let SITL (host gcc) build without any ARM compiler installed.
         "GCC_VERSION": compiler.version,
         "GCC_REQUIRED_VERSION": compiler.version,
+        # Betaflight 2026.6 would clone the submodules it hydrates (src/config, libcanard)
+        # from GitHub for a build: wftool's boards are in targets/, and builds stay offline.
+        "AUTOHYDRATE_SUBMODULES": "",
+        "AUTOHYDRATE_STAMPS": "",
     }
     if not target.is_sitl:
         variables["ARM_SDK_PREFIX"] = compiler.prefix

@@ -16,12 +16,17 @@ from wftool.firmware.project import Project
 
 SITL = "sitl"
 
-KNOWN_BOARD_MCUS = {"SPEEDYBEEF7V3": "STM32F7X2"}
-"""Boards the lab flies, with the MCU their config.h must name (a guard against a wrong file)."""
+KNOWN_BOARD_MCUS = {"SPEEDYBEEF7V3": "STM32F722"}
+"""Boards the lab flies, with the MCU their config.h must name (a guard against a wrong file).
+Betaflight 2026.6 names its MCU targets by part number (STM32F722 was STM32F7X2)."""
 
-SITL_DEFINES = ("USE_LATE_TASK_STATISTICS",)
-"""The virtual FC does not run in real time, so its `tasks` also reports run counts (reset
-by each `tasks`): the exact loop rate over a window, which the stream tests compare with."""
+SITL_DEFINES = ("USE_LATE_TASK_STATISTICS", "ENABLE_GAZEBO_BRIDGE=0", "SITL_ATTITUDE_DIRECT")
+"""USE_LATE_TASK_STATISTICS: the virtual FC does not run in real time, so its `tasks` also
+reports run counts (reset by each `tasks`): the exact loop rate over a window, which the
+stream tests compare with. ENABLE_GAZEBO_BRIDGE=0 and SITL_ATTITUDE_DIRECT: the simulator
+input keeps its axes and the attitude is the simulator's quaternion, as `sitl.session`'s
+motion sends them (Betaflight 2026.6's SITL otherwise applies the Gazebo plugin's frame
+transforms and runs its own attitude estimator on the virtual IMU)."""
 
 _DEFINE = r"^\s*#\s*define\s+{name}\s+(\S+)"
 
@@ -35,7 +40,7 @@ class Target:
     board: str
     """BOARD_NAME as the flight controller reports it over MSP ("SITL" for the simulator)."""
     mcu: str
-    """The Betaflight MCU target (FC_TARGET_MCU), e.g. STM32F7X2; "SITL" for the simulator."""
+    """The Betaflight MCU target (FC_TARGET_MCU), e.g. STM32F722; "SITL" for the simulator."""
     config: str | None = None
     """The directory name under targets/configs/ that make's CONFIG= selects; None for SITL."""
     config_header: Path | None = None
