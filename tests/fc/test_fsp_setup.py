@@ -113,7 +113,7 @@ def test_serial_line_round_trip_and_function_names() -> None:
     config = SerialPortConfig.parse(line)
     assert config.command() == line
     assert function_names(66) == "GPS+RX_SERIAL"
-    assert function_names(FSP_FUNCTION | 1 << 30) == "FSP+bit 30"
+    assert function_names(FSP_FUNCTION | 1 << 31) == "FSP+bit 31"
 
 
 def test_serial_update_rate_can_be_chosen(virtual_fc: VirtualFC, tmp_path: Path) -> None:

@@ -43,7 +43,7 @@ _RANGE = re.compile(r"Allowed range: (-?\d+) - (-?\d+)")
 _VALUES = re.compile(r"Allowed values: (.*)")
 _ARRAY = re.compile(r"Array length: (\d+)")
 _STRING = re.compile(r"String length: (\d+) - (\d+)")
-_SCOPE = re.compile(r"(profile|rateprofile) \d+")
+_SCOPE = re.compile(r"(profile|rateprofile|battery_profile) \d+")
 
 
 @dataclass(frozen=True)
@@ -55,7 +55,8 @@ class Setting:
     constraint: str
     """The FC's line verbatim, e.g. "Allowed range: 0 - 1000" or "Allowed values: OFF, ON"."""
     scope: str | None = None
-    """"profile 0"/"rateprofile 0" for per-profile settings, None for global ones."""
+    """"profile 0"/"rateprofile 0" (Betaflight 2026.6 also "battery_profile 0") for
+    per-profile settings, None for global ones."""
 
     @property
     def int_range(self) -> tuple[int, int] | None:

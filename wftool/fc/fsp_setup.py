@@ -14,7 +14,9 @@ from wftool.fc.msp import FEATURE_RX_MSP, RECEIVER_FEATURES
 from wftool.fc.params import Command, FeatureChange, Plan, Planner, set_command
 from wftool.fsp.schedule import DEFAULT_RATE_HZ
 
-FSP_FUNCTION = 1 << 19
+FSP_FUNCTION = 1 << 30
+"""FSP's serial function bit on the series for Betaflight 2026.6 (1 << 19 on 2025.12, a bit
+2026.6 gives FUNCTION_LIDAR_NL): clear of upstream's sequential allocation."""
 MSP_FUNCTION = 1 << 0
 RX_SERIAL_FUNCTION = 1 << 6
 CMD_TIMEOUT_MS_DEFAULT = 50
@@ -33,9 +35,9 @@ SERIAL_FUNCTION_NAMES = {
     1 << 5: "SMARTPORT", 1 << 6: "RX_SERIAL", 1 << 7: "BLACKBOX", 1 << 9: "MAVLINK",
     1 << 10: "ESC_SENSOR", 1 << 11: "SMARTAUDIO", 1 << 12: "IBUS", 1 << 13: "TRAMP",
     1 << 14: "RCDEVICE", 1 << 15: "LIDAR_TF", 1 << 16: "FRSKY_OSD", 1 << 17: "VTX_MSP",
-    1 << 18: "GIMBAL", FSP_FUNCTION: "FSP",
+    1 << 18: "GIMBAL", 1 << 19: "LIDAR_NL", 1 << 20: "OSD_CUSTOM_TEXT", FSP_FUNCTION: "FSP",
 }  # fmt: skip
-"""`serialPortFunction_e` (io/serial.h), only to name what FSP replaces."""
+"""`serialPortFunction_e` (io/serial.h of Betaflight 2026.6), only to name what FSP replaces."""
 
 
 @dataclass(frozen=True)

@@ -30,17 +30,19 @@ if sys.version_info >= (3, 11):
 else:
     import tomli as tomllib
 
-CONTEXT_VERBS = frozenset({"profile", "rateprofile"})
-"""Switch which PID/rate profile the following `set` lines address."""
+CONTEXT_VERBS = frozenset({"profile", "rateprofile", "battery_profile"})
+"""Switch which PID/rate/battery profile the following `set` lines address (battery profiles
+since Betaflight 2026.6)."""
 CONFIG_VERBS = frozenset(
     {
         "set", "feature", "serial", "map", "aux", "profile", "rateprofile", "defaults",
         "resource", "timer", "dma", "beeper", "beacon", "led", "color", "mode_color",
         "adjrange", "rxrange", "rxfail", "vtxtable", "vtx", "mixer", "mmix", "smix", "servo",
-        "board_name", "manufacturer_id", "mcu_id", "signature",
+        "board_name", "manufacturer_id", "mcu_id", "signature", "battery_profile", "waypoint",
     }
 )  # fmt: skip
-"""What a `diff all`/`dump` script contains, minus what wftool does itself (batch, save)."""
+"""What a `diff all`/`dump` script contains, minus what wftool does itself (batch, save);
+`battery_profile` and `waypoint` since Betaflight 2026.6."""
 HANDLED_BY_WFTOOL = frozenset({"batch", "save"})
 """All-or-nothing and the final save are wftool's job; these script lines are skipped."""
 
@@ -377,7 +379,7 @@ def _validate(session: CliSession, plan: Plan) -> _Changes:
     """
     problems: list[str] = []
     changes: _Changes = {}
-    original_selection: list[str] = []
+    original_selection: dict[str, str] = {}
     feature_names: dict[str, bool] | None = None
     serial_ports: set[str] | None = None
     for command in plan.commands:
@@ -397,8 +399,8 @@ def _validate(session: CliSession, plan: Plan) -> _Changes:
             before = changes[key][0] if key in changes else setting
             changes[key] = (before, setting.canonical(value))
         elif verb in CONTEXT_VERBS:
-            if not original_selection:
-                original_selection = [session.run("profile"), session.run("rateprofile")]
+            if verb not in original_selection:
+                original_selection[verb] = session.run(verb)
             try:
                 session.run(command.text)
             except CliCommandError as exc:
@@ -415,7 +417,7 @@ def _validate(session: CliSession, plan: Plan) -> _Changes:
             problem = _serial_problem(command.text, serial_ports)
             if problem:
                 problems.append(f"{command.where}{problem}")
-    for selection in original_selection:
+    for selection in original_selection.values():
         session.run(selection)
     if problems:
         raise ParameterError(f"{len(problems)} invalid, nothing changed: " + "; ".join(problems))
