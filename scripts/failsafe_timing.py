@@ -182,7 +182,7 @@ def span(values: list[float]) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--trials", type=int, default=5)
-    parser.add_argument("--binary", type=Path, default=Path("build/sitl/betaflight_2025.12.5_SITL"))
+    parser.add_argument("--binary", type=Path, default=Path("build/sitl/betaflight_2026.6.1_SITL"))
     parser.add_argument("--port-base", type=int, default=None)
     parser.add_argument("--cmd-timeout-ms", type=int, default=50)
     args = parser.parse_args()

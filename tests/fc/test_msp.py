@@ -145,8 +145,8 @@ def test_identify_sitl(virtual_fc: VirtualFC, version: MspVersion) -> None:
     with MspClient.open(virtual_fc.url, version=version) as msp:
         fc = msp.identify()
     assert fc.variant == "BTFL"
-    assert fc.version == "2025.12.5"
-    assert (fc.api.major, fc.api.minor) == (1, 47)
+    assert fc.version == "2026.6.1"
+    assert (fc.api.major, fc.api.minor) == (1, 48)
     assert fc.board.board_identifier == "SITL"
     assert fc.board.target_name == "SITL"
     assert not fc.board.has_flash_bootloader

@@ -21,7 +21,7 @@ def project(tmp_path: Path) -> Project:
     board = tmp_path / "targets" / "configs" / "SPEEDYBEEF7V3"
     board.mkdir(parents=True)
     (board / "config.h").write_text(
-        "#pragma once\n#define FC_TARGET_MCU     STM32F7X2\n#define BOARD_NAME  SPEEDYBEEF7V3\n"
+        "#pragma once\n#define FC_TARGET_MCU     STM32F722\n#define BOARD_NAME  SPEEDYBEEF7V3\n"
     )
     other = tmp_path / "targets" / "configs" / "MyBoard"
     other.mkdir()
@@ -52,7 +52,7 @@ def test_targets_case_insensitive(project):
     assert (sitl.is_sitl, sitl.make_vars, sitl.board) == (True, {"TARGET": "SITL"}, "SITL")
     board = resolve_target(project, "SpeedyBeeF7V3")
     assert board.make_vars == {"CONFIG": "SPEEDYBEEF7V3"}
-    assert (board.name, board.board, board.mcu) == ("speedybeef7v3", "SPEEDYBEEF7V3", "STM32F7X2")
+    assert (board.name, board.board, board.mcu) == ("speedybeef7v3", "SPEEDYBEEF7V3", "STM32F722")
     discovered = resolve_target(project, "myboard")
     assert (discovered.make_vars, discovered.board) == ({"CONFIG": "MyBoard"}, "MyBoard")
 

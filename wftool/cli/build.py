@@ -275,14 +275,24 @@ def patches_test(names: tuple[str, ...], everything: bool, project_dir: Path | N
     with locked(project):
         runs = run_unit_tests(project, list(names) or None, everything=everything)
     for run in runs:
+        if run.not_run:
+            reason = shown(f"{run.name}: {run.not_run}")
+            out.print(Text.assemble("  ", ("n/a ", "yellow"), "  ", reason))
+            continue
         mark = ("pass", "green") if run.passed else ("FAIL", "red")
         out.print(Text.assemble("  ", mark, "  ", shown(run.name)))
         if not run.passed:
             for line in run.output[-3000:].splitlines():
                 out.print(shown(line))
-    failed = [run.name for run in runs if not run.passed]
+    failed = [run.name for run in runs if not run.passed and not run.not_run]
+    not_run = [run.name for run in runs if run.not_run]
     if failed:
         raise BuildError(f"{len(failed)} of {len(runs)} unit test(s) failed: {', '.join(failed)}")
+    if not_run:
+        raise BuildError(
+            f"{len(runs) - len(not_run)} unit test(s) passed, {len(not_run)} could not be "
+            f"built: {', '.join(not_run)} (a submodule they need could not be fetched)"
+        )
     out.print(f"{len(runs)} unit test(s) passed")
 
 

@@ -61,7 +61,7 @@ CAPABILITY_RX_BIND = 1 << 6
 
 FEATURE_RX_PPM = 1 << 0
 FEATURE_RX_UDP = 1 << 1
-"""The virtual FC's simulated radio (patch 0017; SITL only)."""
+"""The virtual FC's simulated radio (the SITL's RC input; SITL only)."""
 FEATURE_RX_SERIAL = 1 << 3
 FEATURE_RX_PARALLEL_PWM = 1 << 13
 FEATURE_RX_MSP = 1 << 14
@@ -230,7 +230,7 @@ class ApiVersion:
 
 @dataclass(frozen=True)
 class BoardInfo:
-    """MSP_BOARD_INFO. `target_name` is the MCU target (e.g. STM32F7X2), `board_name` the
+    """MSP_BOARD_INFO. `target_name` is the MCU target (e.g. STM32F722), `board_name` the
     board (e.g. SPEEDYBEEF7V3, empty on SITL)."""
 
     board_identifier: str

@@ -227,7 +227,7 @@ def _validate(session: CliSession, plan: Plan, version: BetaflightVersion) -> _C
     """
     problems: list[str] = []
     changes: _Changes = {}
-    original_selection: list[str] = []
+    original_selection: dict[str, str] = {}
     feature_names: dict[str, bool] | None = None
     serial_ports: set[str] | None = None
     for command in plan.commands:
@@ -249,8 +249,8 @@ def _validate(session: CliSession, plan: Plan, version: BetaflightVersion) -> _C
         elif verb not in version.config_verbs:
             problems.append(f"{command.where}`{verb}` is not a command of {version.name}")
         elif verb in version.profile_kinds:
-            if not original_selection:
-                original_selection = [session.run(kind) for kind in version.profile_kinds]
+            if verb not in original_selection:
+                original_selection[verb] = session.run(verb)
             try:
                 session.run(command.text)
             except CliCommandError as exc:
@@ -267,7 +267,7 @@ def _validate(session: CliSession, plan: Plan, version: BetaflightVersion) -> _C
             problem = _serial_problem(command.text, serial_ports)
             if problem:
                 problems.append(f"{command.where}{problem}")
-    for selection in original_selection:
+    for selection in original_selection.values():
         session.run(selection)
     if problems:
         raise ParameterError(f"{len(problems)} invalid, nothing changed: " + "; ".join(problems))

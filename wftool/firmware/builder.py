@@ -208,8 +208,9 @@ def prepare(
 
 
 OFFLINE = {"AUTOHYDRATE_SUBMODULES": "", "AUTOHYDRATE_STAMPS": ""}
-"""Betaflight 2026.6+ clones src/config and libcanard from GitHub when its Makefile runs,
-unless told there is nothing to hydrate: builds use what the tree holds (harmless before)."""
+"""Betaflight 2026.6 would clone the submodules it hydrates (src/config, libcanard) from
+GitHub for a build: wftool's boards are in targets/, and builds stay offline (harmless
+before 2026.6)."""
 
 
 def make_variables(

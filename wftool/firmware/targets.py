@@ -21,9 +21,13 @@ KNOWN_BOARD_PARTS = {"SPEEDYBEEF7V3": "STM32F722"}
 """Boards the lab flies, with the MCU part their config.h must name (by the target name of
 any Betaflight version: `wftool.fc.versions.mcu_part`), a guard against a wrong file."""
 
-SITL_DEFINES = ("USE_LATE_TASK_STATISTICS",)
-"""The virtual FC does not run in real time, so its `tasks` also reports run counts (reset
-by each `tasks`): the exact loop rate over a window, which the stream tests compare with."""
+SITL_DEFINES = ("USE_LATE_TASK_STATISTICS", "ENABLE_GAZEBO_BRIDGE=0", "SITL_ATTITUDE_DIRECT")
+"""USE_LATE_TASK_STATISTICS: the virtual FC does not run in real time, so its `tasks` also
+reports run counts (reset by each `tasks`): the exact loop rate over a window, which the
+stream tests compare with. ENABLE_GAZEBO_BRIDGE=0 and SITL_ATTITUDE_DIRECT: the simulator
+input keeps its axes and the attitude is the simulator's quaternion, as `sitl.session`'s
+motion sends them (Betaflight 2026.6's SITL otherwise applies the Gazebo plugin's frame
+transforms and runs its own attitude estimator on the virtual IMU)."""
 
 _DEFINE = r"^\s*#\s*define\s+{name}\s+(\S+)"
 

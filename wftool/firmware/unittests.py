@@ -2,7 +2,9 @@
 
 The series adds its tests beside Betaflight's; `series_tests` finds them from the patched
 commits, so a new test in patches/ is run without being listed anywhere. The tree is
-fetched without src/test and lib/test; running tests checks them out first.
+fetched without src/test and lib/test; running tests checks them out first. A test whose
+make rule cannot fetch a submodule it compiles (Betaflight 2026.6's DroneCAN tests clone
+libcanard) is reported as not run, with that reason, apart from a failure.
 """
 
 from __future__ import annotations
@@ -21,6 +23,8 @@ from wftool.firmware.targets import SITL, resolve_target
 
 TEST_PATHS = ("src/test", "lib/test")
 _UNIT_TEST = re.compile(r"^src/test/unit/(\w+_unittest)\.cc$")
+_SUBMODULE_NOT_FETCHED = re.compile(r"^Failed to clone '(?P<path>[^']+)'", re.MULTILINE)
+"""`git submodule update`'s words when it cannot fetch a submodule (make rules of src/test)."""
 _TEST_COMPILERS = ("clang", "clang++")
 """src/test/Makefile falls back to plain clang when its preferred clang-18 is absent."""
 
@@ -30,6 +34,17 @@ class UnitTestRun:
     name: str
     passed: bool
     output: str
+    not_run: str | None = None
+    """Why the test could not be built (a submodule it needs could not be fetched); None
+    when make got to build and run it."""
+
+
+def not_run_reason(output: str) -> str | None:
+    """Why make could not build a test, from its output: a submodule it did not fetch."""
+    fetch = _SUBMODULE_NOT_FETCHED.search(output)
+    if fetch is None:
+        return None
+    return f"needs {fetch['path']}, a submodule of the Betaflight tree that could not be fetched"
 
 
 def series_tests(project: Project) -> list[str]:
@@ -83,7 +98,9 @@ def run_test(repo: Path, name: str) -> UnitTestRun:
     proc = subprocess.run(
         ["make", name], cwd=repo, capture_output=True, text=True, errors="replace", check=False
     )
-    return UnitTestRun(name, proc.returncode == 0, proc.stdout + proc.stderr)
+    output = proc.stdout + proc.stderr
+    passed = proc.returncode == 0
+    return UnitTestRun(name, passed, output, None if passed else not_run_reason(output))
 
 
 def check_out_tests(repo: Path) -> None:
