@@ -333,8 +333,12 @@ def patches_check(
         built = {None: "—", True: "yes", False: "no"}[check.built]
         passed = sum(run.passed for run in check.tests)
         failed = [run.name.removeprefix("test_") for run in check.tests if not run.passed]
+        not_run = [run.name.removeprefix("test_") for run in check.tests if run.not_run]
         tests = f"{passed}/{len(check.tests)}" if check.tests else "—"
-        tests += f" ({', '.join(failed)} fail)" if failed else ""
+        if failed_run := [name for name in failed if name not in not_run]:
+            tests += f" ({', '.join(failed_run)} fail)"
+        if not_run:
+            tests += f" ({', '.join(not_run)} not built: a submodule it needs was not fetched)"
         rows.append((check.name, applied, conflicts, built, tests))
     title = f"the series on {ref} ({report.commit[:9]}, Betaflight {report.version})"
     header = ("patch", "applies", "conflicts (files)", "SITL builds", "its unit tests")
