@@ -49,8 +49,25 @@ def test_the_pid_loop_pays_a_compare_until_a_command_is_due(queue_m7) -> None:
 
 def test_the_queue_takes_its_size_in_ram(queue_m7) -> None:
     queue_m7.call("queueHarnessQueueSize")
-    # 8 commands and 8 reports of 32 bytes, the counts and the indices
-    assert queue_m7.result() == 8 * 32 + 8 * 32 + 6 * 2 + 4
+    # 8 commands of 32 bytes (each with its late flag, padded: 36) and 8 reports of 32
+    # bytes, the counts and the indices
+    queue_bytes = queue_m7.result()
+    assert queue_bytes == 8 * 36 + 8 * 32 + 6 * 2 + 4
+    queue_m7.call("queueHarnessAuthoritySize")
+    assert queue_m7.result() > queue_bytes  # the queue lives in the authority, with the gate
+
+
+def test_an_fsp_task_run_pays_for_who_flies_and_hands_commands_over(queue_m7) -> None:
+    from wftool.analysis.timedcost import measure
+
+    cases = {case.name: case for case in measure(queue_m7)}  # raises if a path is not reached
+    idle = cases["a run, nothing decoded (who flies, the timeouts)"]
+    immediate = cases["a run, a fresh immediate command: to the receiver"]
+    timed = cases["a run, a fresh timed command: queued"]
+    assert idle.where == immediate.where == timed.where == "FSP task"
+    assert idle.instructions < timed.instructions < immediate.instructions
+    # the hand-over to the MSP receiver is the PID loop's cost for a timed command too
+    assert immediate.instructions > cases["a command due: applied"].instructions / 2
 
 
 def test_analyze_timed_without_the_emulator_names_the_extra(monkeypatch, capsys) -> None:

@@ -1,6 +1,7 @@
-"""`wftool analyze timed`: what timed commands (E4) cost the SPEEDYBEEF7V3, counted as the
-accelerometer filter's cost is: the series' own code built for the Cortex-M7 and run in
-Unicorn (`m7`), per PID iteration and per command, and the queue's RAM (docs/analysis.md).
+"""`wftool analyze timed`: what the uplink's command path — timed commands (E4) and who flies
+(spec §15) — costs the SPEEDYBEEF7V3, counted as the accelerometer filter's cost is: the
+series' own code built for the Cortex-M7 and run in Unicorn (`m7`), per PID iteration, per
+FSP task run and per command, and its RAM (docs/analysis.md).
 """
 
 from __future__ import annotations
@@ -52,6 +53,8 @@ class TimedCost:
     cases: tuple[Case, ...]
     queue_bytes: int
     """sizeof(fspQueue_t): the commands waiting, the reports waiting, the counts."""
+    authority_bytes: int
+    """sizeof(fspAuthority_t): the queue, the freshness gate and who flies."""
     check: dict[str, Any] = field(default_factory=dict)
     """The emulator's count checked against a straight-line function's disassembly."""
     provenance: dict[str, object] = field(default_factory=dict)
@@ -99,21 +102,24 @@ def measure(m7: M7Harness) -> tuple[Case, ...]:
     case("the receiver's signal delay", rx, m7.call("queueHarnessSignalDelay"))
 
     m7.call(ENTRY, T0_US)
-    queue, command = m7.address("harnessQueue"), m7.address("harnessCommandBuf")
-    m7.call("queueHarnessDecode", 3, T0_US + LEAD_US, T0_US)
-    taken = m7.call("fspQueueTake", queue, command, T0_US, TIMEOUT_US)
-    case("take a fresh timed command", task, taken)
+    case("a run, nothing decoded (who flies, the timeouts)", task, m7.call("harnessFspRun", 0, T0_US + 1000))
+    m7.call("queueHarnessDecode", 3, 0)
+    case("a run, a fresh immediate command: to the receiver", task, m7.call("harnessFspRun", 1, T0_US + 2000))
+    expect_queued(0, "immediate")
+    m7.call("queueHarnessDecode", 4, T0_US + 2000 + LEAD_US)
+    case("a run, a fresh timed command: queued", task, m7.call("harnessFspRun", 1, T0_US + 3000))
     expect_queued(1, "taken")
-    loop(T0_US + LEAD_US)
+    loop(T0_US + 2000 + LEAD_US)
     case("pop a report", task, m7.call("queueHarnessPopReport"))
     wire = m7.address("harnessScratch")
     case("encode and frame a report", task, m7.call("queueHarnessEncodeReport", wire))
+    case("encode and frame an uplink status", task, m7.call("queueHarnessEncodeStatus", wire))
     return tuple(cases)
 
 
 def reference_check(m7: M7Harness) -> dict[str, Any]:
     """The instructions a straight-line function executes against its disassembly."""
-    gate = m7.address("harnessGate")
+    gate = m7.address("harnessAuthority")  # the gate is its first member
     executed = m7.call(CHECKED_FUNCTION, gate, T0_US).instructions
     m7.call(ENTRY, T0_US)  # the gate as it was
     return {
@@ -139,9 +145,12 @@ def run(
         m7 = M7Harness(image)
         m7.call("queueHarnessQueueSize")
         queue_bytes = m7.result()
+        m7.call("queueHarnessAuthoritySize")
+        authority_bytes = m7.result()
         return TimedCost(
             cases=measure(m7),
             queue_bytes=queue_bytes,
+            authority_bytes=authority_bytes,
             check=reference_check(m7),
             provenance={
                 "wftool": __version__,

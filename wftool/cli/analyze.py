@@ -197,13 +197,14 @@ def timing_command(
 
 
 @analyze_group.command(
-    "timed", short_help="What timed commands (E4) cost the SPEEDYBEEF7V3's Cortex-M7."
+    "timed",
+    short_help="What the uplink's command path (E4, who flies) costs the SPEEDYBEEF7V3's M7.",
 )
 @project_option
 def timed_command(project_dir: Path | None) -> None:
-    """What timed commands (E4) cost the SPEEDYBEEF7V3: the series' queue code built with
-    Betaflight's F7 flags and run on an emulated Cortex-M7, per PID iteration and per
-    command, and the queue's RAM."""
+    """What the uplink's command path costs the SPEEDYBEEF7V3: the series' code for timed
+    commands (E4) and who flies (spec §15) built with Betaflight's F7 flags and run on an
+    emulated Cortex-M7, per PID iteration, per FSP task run and per command, and its RAM."""
     require("analysis", *EMULATOR, what="analyze timed")
     from wftool.analysis import timedcost
 
@@ -226,7 +227,8 @@ def timed_command(project_dir: Path | None) -> None:
     )
     check = cost.check
     out.print(
-        f"queue RAM: {cost.queue_bytes} bytes (sizeof(fspQueue_t)); cycles: one per executed "
+        f"RAM: {cost.authority_bytes} bytes (sizeof(fspAuthority_t)), of them the queue's "
+        f"{cost.queue_bytes} (sizeof(fspQueue_t)); cycles: one per executed "
         f"instruction at {int(check['clock_hz']) / 1e6:g} MHz; {check['function']} executed "
         f"{check['executed_instructions']} instructions, its disassembly has "
         f"{check['disassembly_instructions']}"
