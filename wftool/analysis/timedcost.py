@@ -102,9 +102,17 @@ def measure(m7: M7Harness) -> tuple[Case, ...]:
     case("the receiver's signal delay", rx, m7.call("queueHarnessSignalDelay"))
 
     m7.call(ENTRY, T0_US)
-    case("a run, nothing decoded (who flies, the timeouts)", task, m7.call("harnessFspRun", 0, T0_US + 1000))
+    case(
+        "a run, nothing decoded (who flies, the timeouts)",
+        task,
+        m7.call("harnessFspRun", 0, T0_US + 1000),
+    )
     m7.call("queueHarnessDecode", 3, 0)
-    case("a run, a fresh immediate command: to the receiver", task, m7.call("harnessFspRun", 1, T0_US + 2000))
+    case(
+        "a run, a fresh immediate command: to the receiver",
+        task,
+        m7.call("harnessFspRun", 1, T0_US + 2000),
+    )
     expect_queued(0, "immediate")
     m7.call("queueHarnessDecode", 4, T0_US + 2000 + LEAD_US)
     case("a run, a fresh timed command: queued", task, m7.call("harnessFspRun", 1, T0_US + 3000))
