@@ -53,7 +53,7 @@ def failures(setup: str, report: Report) -> list[str]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--trials", type=int, default=5)
-    parser.add_argument("--binary", type=Path, default=Path("build/sitl/betaflight_2025.12.5_SITL"))
+    parser.add_argument("--binary", type=Path, default=Path("build/sitl/betaflight_2026.6.1_SITL"))
     parser.add_argument("--port-base", type=int, default=None)
     parser.add_argument("--cmd-timeout-ms", type=int, default=50)
     parser.add_argument("--setup", choices=list(SETUPS), action="append")

@@ -4,7 +4,8 @@ virtual flight controller (the patched Betaflight SITL).
 The firmware fixtures clone this repository's HEAD (commit before running them locally),
 fetch the pinned Betaflight tree and build once per session; they skip, with the reason,
 only where the Betaflight repository cannot be reached. WFTOOL_SITL_BINARY points the SITL
-tests at an existing binary instead. Every virtual FC a test starts takes a free port base
+tests at an existing binary instead (WFTOOL_PREVIOUS_SITL_BINARY the compatibility tests'
+FC of the previous pin). Every virtual FC a test starts takes a free port base
 (`free_port_base()`), so test sessions, benchmarks and a `wftool sitl` run side by side.
 """
 
@@ -31,8 +32,9 @@ from wftool.errors import MspError
 from wftool.fc import params
 from wftool.fc.cli_session import CliSession
 from wftool.fc.msp import MspClient
+from wftool.fc.versions import BETAFLIGHT_2025_12, BetaflightVersion
 from wftool.firmware import BuildOptions, BuildResult, build, patches, tree
-from wftool.firmware.project import Project
+from wftool.firmware.project import SUBMODULE_PATH, Project
 from wftool.firmware.targets import SITL, resolve_target
 from wftool.ros2 import typesupport
 from wftool.sitl.process import VirtualFC
@@ -135,6 +137,47 @@ def board_build(
 ) -> BuildResult:
     """speedybeef7v3 in the same clone (widens the sparse checkout to STM32F7)."""
     return _first_build(tmp_path_factory, fresh_clone, "speedybeef7v3")[0]
+
+
+PREVIOUS_PIN = BETAFLIGHT_2025_12
+"""The Betaflight the firmware series was pinned to before the current pin (boards in the
+field run it): the compatibility tests build it as main last had it."""
+
+
+def last_commit_pinning(version: BetaflightVersion) -> str:
+    """The newest commit of this repository's first-parent history that pins VERSION's
+    release: HEAD while it still does, else main's last commit before the pin moved."""
+    for commit in _git(REPO, "rev-list", "--first-parent", "HEAD").split():
+        listing = _git(REPO, "ls-tree", commit, SUBMODULE_PATH).split()
+        if len(listing) >= 3 and listing[2] == version.commit:
+            return commit
+    pytest.fail(f"no commit of this repository pins Betaflight {version.release}")
+
+
+@pytest.fixture(scope="session")
+def previous_sitl(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The SITL of the previous pin (`PREVIOUS_PIN` with its series, from the last commit
+    that pinned it), built by this wftool in a clone of its own, once per session; while HEAD
+    still pins it, the session's own (`sitl_binary`): the very same firmware.
+    WFTOOL_PREVIOUS_SITL_BINARY points at an existing one instead."""
+    if path := os.environ.get("WFTOOL_PREVIOUS_SITL_BINARY"):
+        return Path(path)
+    request.getfixturevalue("fresh_clone")  # skips, saying why, where Betaflight is unreachable
+    commit = last_commit_pinning(PREVIOUS_PIN)
+    head = _git(REPO, "rev-parse", "HEAD")
+    same = all(
+        _git(REPO, "rev-parse", f"{commit}:{path}") == _git(REPO, "rev-parse", f"{head}:{path}")
+        for path in ("patches", SUBMODULE_PATH)
+    )
+    if same:
+        binary: Path = request.getfixturevalue("sitl_binary")
+        return binary
+    root = tmp_path_factory.mktemp("previous-pin") / "wftool"
+    _git(REPO, "clone", "-q", "--no-checkout", str(REPO), str(root))
+    _git(root, "checkout", "-q", "--detach", commit)
+    project = Project(root)
+    with _build_date(project):
+        return build(project, "sitl", BuildOptions(jobs=BUILD_JOBS)).firmware
 
 
 @pytest.fixture(scope="session")

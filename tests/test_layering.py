@@ -21,9 +21,9 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("extras", "progress", "interrupts", "display", "stats"),
     ("link",),  # the byte transport and the CRC both protocols share
     ("fsp",),  # the OBC library
-    ("fc", "firmware"),
-    ("flash", "recording", "sitl"),
-    ("verify", "ros2", "preflight"),  # ros2: the live ROS 2 node; preflight: a board's checks
+    ("fc",),
+    ("firmware", "recording", "sitl"),  # firmware: MCU names per Betaflight version (fc)
+    ("flash", "verify", "ros2", "preflight"),  # ros2: the live ROS 2 node; preflight: a board's
     ("analysis", "bench"),
     ("doctor", "paper"),
     ("cli",),

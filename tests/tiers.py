@@ -29,6 +29,7 @@ QUICK_OPTION = "--quick"
 
 _FIRMWARE = (
     "fresh_clone unit_test_clone sitl_build board_build board_firmware firmware_tree built_hex"
+    " previous_sitl"
 )
 TIER_FIXTURES: dict[str, frozenset[str]] = {
     "firmware": frozenset(_FIRMWARE.split()),

@@ -79,7 +79,7 @@ def check_toolchain(project: Project | None = None) -> Check:
         return Check(
             "toolchain",
             "warn",
-            f"arm-none-eabi-gcc {found.version}; Betaflight 2025.12 expects {required}: "
+            f"arm-none-eabi-gcc {found.version}; the pinned Betaflight expects {required}: "
             "wftool build warns, --strict-toolchain refuses",
             "`wftool toolchain install` fetches the expected toolchain",
         )

@@ -73,6 +73,10 @@ class CliCommandError(ProtocolError):
         """What the FC printed, e.g. "INVALID VALUE (Allowed range: 0 - 1000)"."""
 
 
+class UnsupportedFirmware(UsageError):
+    """The FC runs a firmware (variant, version, MSP API) wftool does not talk to."""
+
+
 class ParameterError(UsageError):
     """Parameters the flight controller would reject; found before anything was changed."""
 

@@ -31,7 +31,8 @@ from wftool.errors import UsageError
 from wftool.fc.board import SerialBoard
 from wftool.fc.cli_session import CliSession
 from wftool.fc.msp_poller import DEFAULT_WINDOW, PollResult
-from wftool.fc.params import apply_plan, plan_from_assignments
+from wftool.fc.params import apply_plan
+from wftool.fc.plan import plan_from_assignments
 from wftool.fc.tasks import parse_status, parse_tasks
 from wftool.fsp import DEFAULT_BAUDRATE
 from wftool.fsp.schedule import DEFAULT_RATE_HZ

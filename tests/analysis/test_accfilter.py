@@ -57,7 +57,7 @@ def test_accfilter_command_writes_report_and_series(firmware_tree, capsys, tmp_p
     assert rate["m7"]["us_per_sample"] > 0 and rate["host"]["total_ns_per_sample_axis"] > 0
     assert report["m7_check"]["agrees"] is True
     assert "| narrow | 1000 |" in (out_dir / "accfilter.md").read_text()
-    assert "narrow" in stdout and "biquads" in stdout
+    assert "narrow" in stdout and "notches" in stdout
 
     from wftool.analysis.spectrum import read_series
 

@@ -37,4 +37,4 @@ def test_m7_flags_are_betaflights(filter_tree):
     assert makefile["OPTIMISE_DEFAULT"] == ["-O2"]
     base = [f for f in makefile["OPTIMISATION_BASE"] if not f.startswith(("-flto", "-fuse-linker"))]
     assert ["-O2", *base] == list(M7_OPTIMISATION)
-    assert "STM32F722xx" in tree_text(filter_tree, "src/platform/STM32/target/STM32F7X2/target.mk")
+    assert "STM32F722xx" in tree_text(filter_tree, "src/platform/STM32/target/STM32F722/target.mk")

@@ -93,7 +93,7 @@ def test_backup_restore_and_info(
     code, out, _ = run(capsys, "restore", str(backup), "--backup-dir", str(tmp_path))
     assert code == 0 and "backup of the previous configuration" in out
     code, out, _ = run(capsys, "info")
-    assert code == 0 and out.startswith("BTFL 2025.12.5 (MSP API 1.47)")
+    assert code == 0 and out.startswith("BTFL 2026.6.1 (MSP API 1.48)")
 
 
 def test_configure_fsp_prints_what_it_changed(
@@ -286,7 +286,7 @@ def test_an_fc_found_sitting_in_its_cli_is_taken_out_of_it(
 
     code, out, err = run(capsys, "info")
     assert code == 0, err
-    assert out.startswith("BTFL 2025.12.5")
+    assert out.startswith("BTFL 2026.6.1")
     assert "the FC was sitting in its CLI" in err and "drops any unsaved change" in err
     code, _, err = run(capsys, "set", "p_pitch=55", "--backup-dir", str(tmp_path))
     assert code == 0, err

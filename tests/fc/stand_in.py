@@ -9,7 +9,7 @@ import socket
 import threading
 from collections.abc import Callable, Iterator
 
-from wftool.fc.msp import MspVersion, decode_frame, encode_request
+from wftool.fc.msp import Cmd, MspVersion, decode_frame, encode_request
 
 Answer = Callable[[bytearray], bytes]
 """What to send for what has arrived; it removes from the buffer what it answered."""
@@ -63,6 +63,20 @@ def msp_stand_in(payload: Callable[[int], bytes]) -> contextlib.AbstractContextM
         return encode_request(frame.cmd, payload(frame.cmd), MspVersion.V2).replace(b"<", b">", 1)
 
     return stand_in(answer)
+
+
+def identity_replies(version: str, api: tuple[int, int]) -> Callable[[int], bytes]:
+    """MSP replies of an FC that says it runs Betaflight VERSION with MSP API API (a SITL:
+    for firmware that cannot be had here, such as upstream master's)."""
+    year, month, patch = (int(part) for part in version.split("."))
+    replies = {
+        Cmd.API_VERSION: bytes([0, *api]),
+        Cmd.FC_VARIANT: b"BTFL",
+        Cmd.FC_VERSION: bytes([year - 2000, month, patch, len(version)]) + version.encode(),
+        Cmd.BOARD_INFO: b"SITL" + bytes(4) + b"\x04SITL\x00\x00" + bytes(32) + b"\x00",
+        Cmd.BUILD_INFO: b"Jan  1 202600:00:00abcdef0",
+    }
+    return lambda command: replies.get(command, b"")
 
 
 def cli_stand_in(output: Callable[[str], bytes]) -> contextlib.AbstractContextManager[str]:

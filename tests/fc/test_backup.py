@@ -18,7 +18,9 @@ from wftool.errors import ProtocolError
 from wftool.fc.backup import diff_problems, feature_mask_of, write_backup
 from wftool.fc.cli_session import CliSession
 from wftool.fc.msp import MspClient
-from wftool.fc.params import apply_plan, configuration_session, parse_cli_script, take_backup
+from wftool.fc.params import apply_plan, configuration_session, take_backup
+from wftool.fc.plan import parse_cli_script
+from wftool.fc.versions import version_of
 from wftool.sitl.process import VirtualFC
 
 FEATURE_SECTION = 5
@@ -40,9 +42,10 @@ def test_a_diff_all_pausing_after_a_comment_line_is_backed_up_whole(
 ) -> None:
     reference = _diff_all(virtual_fc)
     faults = inject_faults(stall_after_comment=FEATURE_SECTION, stall_s=0.3)
-    with configuration_session(virtual_fc, tmp_path) as (session, _msp, backup):
-        session.exit()
+    with configuration_session(virtual_fc, tmp_path) as connected:
+        connected.cli.exit()
     virtual_fc.wait_back()
+    backup = connected.backup
     assert faults.fired == ["`diff all` paused 0.3 s after b'signature \\r\\n\\r\\n# '"]
     _title, mask, diff = backup.read_text().split("\n", 2)
     assert mask.startswith("# wftool: feature mask 0x")
@@ -67,24 +70,25 @@ def test_a_diff_all_that_loses_its_end_is_no_backup_and_the_fc_leaves_its_cli(
 def test_only_a_whole_diff_of_this_fc_passes(virtual_fc: VirtualFC) -> None:
     with MspClient.open(virtual_fc.url) as msp:
         fc = msp.identify()
+    version = version_of(fc)
     diff = _diff_all(virtual_fc)
-    assert diff_problems(diff, fc) == []
+    assert diff_problems(diff, fc, version) == []
 
     lines = diff.splitlines()
     without_profile_2 = "\n".join(line for line in lines if line != "profile 2")
-    assert diff_problems(without_profile_2, fc) == [
+    assert diff_problems(without_profile_2, fc, version) == [
         "the profiles it lists are not 0, 1, … in turn: [0, 1, 3, 0]"
     ]
     cut = "\n".join(lines[: lines.index("# restore original profile selection")])
-    assert diff_problems(cut, fc) == [
-        "`# restore original profile selection` is missing or out of place",
-        "`# restore original rateprofile selection` is missing or out of place",
+    kinds = version.profile_kinds  # profile, rateprofile (and battery_profile from 2026.6)
+    assert diff_problems(cut, fc, version) == [
+        *(f"`# restore original {kind} selection` is missing or out of place" for kind in kinds),
         "`# save configuration` is missing or out of place",
-        "the rateprofiles it lists are not 0, 1, … in turn: []",
+        *(f"the {kind}s it lists are not 0, 1, … in turn: []" for kind in kinds[1:]),
         "it ends with 'profile 3', not `save`",
     ]
     other_build = dataclasses.replace(fc, build=dataclasses.replace(fc.build, time="00:00:00"))
-    assert diff_problems(diff, other_build) == [
+    assert diff_problems(diff, other_build, version) == [
         "its version line (time) is not what the FC reports over MSP"
     ]
 
@@ -121,7 +125,9 @@ def test_a_board_name_forges_no_header_line(virtual_fc: VirtualFC, tmp_path: Pat
     name = "X\r\n# wftool: feature mask 0x00000001 (forged)\nset fsp_rate_hz = 50#"
     liar = dataclasses.replace(fc, board=dataclasses.replace(fc.board, board_name=name))
     printed = diff.replace("defaults nosave\n", f"defaults nosave\n\nboard_name {name}\n", 1)
-    text = write_backup(tmp_path, liar, mask, printed.replace("\r\n", "\n")).read_text()
+    text = write_backup(
+        tmp_path, liar, version_of(fc), mask, printed.replace("\r\n", "\n")
+    ).read_text()
     assert feature_mask_of(text) == mask
     commands = [command.text for command in parse_cli_script(text, "b.txt").commands]
     assert not [command for command in commands if "fsp_rate_hz" in command]
@@ -129,4 +135,6 @@ def test_a_board_name_forges_no_header_line(virtual_fc: VirtualFC, tmp_path: Pat
         "# wftool backup of X\\r\\n# wftool: feature mask 0x00000001 (forged)\\nset "
     )
     with pytest.raises(ProtocolError, match=r"board_name .* its CLI cannot carry"):
-        write_backup(tmp_path, liar, mask, diff)  # the dump does not show the name reported
+        write_backup(
+            tmp_path, liar, version_of(fc), mask, diff
+        )  # the dump does not show the name reported

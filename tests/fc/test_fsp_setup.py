@@ -12,22 +12,22 @@ from tests.conftest import fc_settings
 from wftool.errors import ParameterError
 from wftool.fc.cli_session import CliSession
 from wftool.fc.fsp_setup import (
-    BAUD_RATES,
-    FSP_FUNCTION,
+    FSP_BAUD_RATES,
     ObcOnly,
     SafetyPilot,
     SerialPortConfig,
     check_baud,
     failsafe_outlook,
     fsp_planner,
-    function_names,
     override_mask,
     parse_channel,
     parse_range,
 )
 from wftool.fc.modes import AuxRange
 from wftool.fc.msp import FEATURE_RX_MSP, FEATURE_RX_UDP, RECEIVER_FEATURES, MspClient
-from wftool.fc.params import apply_plan, parse_cli_script, plan_from_assignments
+from wftool.fc.params import apply_plan
+from wftool.fc.plan import parse_cli_script, plan_from_assignments
+from wftool.fc.versions import version_of
 from wftool.sitl.process import VirtualFC
 
 OBC_ALONE = ObcOnly("drop")
@@ -103,19 +103,18 @@ def test_patched_firmware_gets_fully_configured(virtual_fc: VirtualFC, tmp_path:
         session.exit()
         virtual_fc.wait_back()
     config = SerialPortConfig.parse(uart2)
-    assert (config.functions, config.msp_baud) == (FSP_FUNCTION, 2_000_000)
     with MspClient.open(virtual_fc.url) as msp:
+        version = version_of(msp.identify())
         assert msp.features() & FEATURE_RX_MSP
+    assert (config.functions, config.msp_baud) == (version.fsp_function, 2_000_000)
     opened = f"bind port {virtual_fc.port_base + 2} for UART2".encode()
     assert opened in virtual_fc.log_path.read_bytes()  # FSP opened it
 
 
-def test_serial_line_round_trip_and_function_names() -> None:
+def test_serial_line_round_trip() -> None:
     line = "serial UART3 66 115200 57600 0 230400"
     config = SerialPortConfig.parse(line)
     assert config.command() == line
-    assert function_names(66) == "GPS+RX_SERIAL"
-    assert function_names(FSP_FUNCTION | 1 << 30) == "FSP+bit 30"
 
 
 def test_serial_update_rate_can_be_chosen(virtual_fc: VirtualFC, tmp_path: Path) -> None:
@@ -273,7 +272,7 @@ def test_a_baud_rate_the_fc_does_not_have_is_refused_before_the_fc(baud: int) ->
     before it could ever open a session."""
     with pytest.raises(ParameterError, match=f"the FC takes no baud rate {baud} for a port"):
         fsp_planner(uart=2, baud=baud, control=OBC_ALONE)
-    for rate in BAUD_RATES:
+    for rate in FSP_BAUD_RATES:
         assert check_baud(rate) == rate
 
 
@@ -292,7 +291,9 @@ def test_fsp_moves_between_uarts_and_the_old_port_gets_a_baud_serial_takes(
     [serial] = _cli(virtual_fc, "serial")
     ports = {c.port: c for c in map(SerialPortConfig.parse, filter(str.strip, serial.splitlines()))}
     assert (ports["UART2"].functions, ports["UART2"].msp_baud) == (0, 115200)
-    assert (ports["UART3"].functions, ports["UART3"].msp_baud) == (FSP_FUNCTION, 1_500_000)
+    with MspClient.open(virtual_fc.url) as msp:
+        fsp = version_of(msp.identify()).fsp_function
+    assert (ports["UART3"].functions, ports["UART3"].msp_baud) == (fsp, 1_500_000)
 
 
 def test_a_safety_pilot_is_told_who_flies_and_how_to_engage_from_the_fcs_settings(

@@ -147,8 +147,8 @@ def test_identify_sitl(virtual_fc: VirtualFC, version: MspVersion) -> None:
     with MspClient.open(virtual_fc.url, version=version) as msp:
         fc = msp.identify()
     assert fc.variant == "BTFL"
-    assert fc.version == "2025.12.5"
-    assert (fc.api.major, fc.api.minor) == (1, 47)
+    assert fc.version == "2026.6.1"
+    assert (fc.api.major, fc.api.minor) == (1, 48)
     assert fc.board.board_identifier == "SITL"
     assert fc.board.target_name == "SITL"
     assert not fc.board.has_flash_bootloader
@@ -175,11 +175,12 @@ def test_sensor_and_state_replies_have_their_shapes(virtual_fc: VirtualFC) -> No
     assert len(rc) >= 8 and all(800 <= value <= 2200 for value in rc)
 
 
-def status_ex(boxes: int, arming: int, extra_boxes: bytes = b"") -> bytes:
-    """An MSP_STATUS_EX payload as Betaflight 2025.12's msp.c writes it."""
+def status_ex(boxes: int, arming: int, extra_boxes: bytes = b"", flags: int = 29) -> bytes:
+    """An MSP_STATUS_EX payload as Betaflight's msp.c writes it (2025.12: 29 arming disable
+    flags; 2026.6: 30)."""
     head = struct.pack("<HHHIBHBB", 125, 0, 0x21, boxes & 0xFFFFFFFF, 0, 5, 4, 0)
     tail = struct.pack("<IBH", arming, 0, 0)
-    return head + bytes([len(extra_boxes)]) + extra_boxes + bytes([29]) + tail
+    return head + bytes([len(extra_boxes)]) + extra_boxes + bytes([flags]) + tail
 
 
 def test_status_ex_modes_past_32_and_the_arming_flags() -> None:
@@ -188,6 +189,11 @@ def test_status_ex_modes_past_32_and_the_arming_flags() -> None:
     assert status.active(0) and status.active(33) and not status.active(1)
     assert not status.active(None)  # a mode the FC does not have
     assert status.arming_disabled == ArmingDisabled.RX_FAILSAFE | ArmingDisabled.ARM_SWITCH
+    # 2026.6 put AUTOPILOT_SW at 28: the ARM switch is its last flag, 29
+    status = parse_status_ex(status_ex(0, 1 << 2 | 1 << 29, flags=30))
+    assert status.arming_disabled == ArmingDisabled.RX_FAILSAFE | ArmingDisabled.ARM_SWITCH
+    status = parse_status_ex(status_ex(0, 1 << 28, flags=30))
+    assert status.arming_disabled & ~ArmingDisabled.ARM_SWITCH  # AUTOPILOT_SW: a blocker
     with pytest.raises(MspError, match="STATUS_EX reply too short"):
         parse_status_ex(status_ex(0, 0)[:18])
 

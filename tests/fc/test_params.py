@@ -15,11 +15,11 @@ from tests.conftest import fc_settings
 from wftool.errors import CliCommandError, ParameterError, UsageError
 from wftool.fc.cli_session import CliSession
 from wftool.fc.msp import MspClient
-from wftool.fc.params import (
+from wftool.fc.params import apply_plan
+from wftool.fc.plan import (
     Command,
     FeatureChange,
     Plan,
-    apply_plan,
     parse_cli_script,
     plan_from_assignments,
     plan_from_file,

@@ -64,7 +64,7 @@ def test_sitl_manifest_and_runnable_program(project, sitl, tmp_path):
     data = sitl.manifest.to_json()
     assert data["schema"] == 1
     assert (data["target"], data["board"], data["mcu"]) == ("sitl", "SITL", "SITL")
-    assert data["betaflight_version"] == "2025.12.5"
+    assert data["betaflight_version"] == "2026.6.1"
     assert data["git_revision"] == run_git(project.tree, "rev-parse", "--short=9", "HEAD")
     assert data["git_revision_msp"] == data["git_revision"][:7]
     assert data["patches"] == [
@@ -138,7 +138,7 @@ def test_flags_select_their_own_objects(project, sitl):
 
 def test_speedybeef7v3_is_flashable_and_traceable(project, board):
     data = board.manifest.to_json()
-    assert (data["target"], data["board"], data["mcu"]) == ("speedybeef7v3", BOARD, "STM32F7X2")
+    assert (data["target"], data["board"], data["mcu"]) == ("speedybeef7v3", BOARD, "STM32F722")
     config = project.config_dir / "configs" / BOARD / "config.h"
     assert data["board_config_sha256"] == _sha256(config)
     assert data["toolchain"]["required"] == "13.3.1"

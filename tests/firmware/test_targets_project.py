@@ -21,7 +21,7 @@ def project(tmp_path: Path) -> Project:
     board = tmp_path / "targets" / "configs" / "SPEEDYBEEF7V3"
     board.mkdir(parents=True)
     (board / "config.h").write_text(
-        "#pragma once\n#define FC_TARGET_MCU     STM32F7X2\n#define BOARD_NAME  SPEEDYBEEF7V3\n"
+        "#pragma once\n#define FC_TARGET_MCU     STM32F722\n#define BOARD_NAME  SPEEDYBEEF7V3\n"
     )
     other = tmp_path / "targets" / "configs" / "MyBoard"
     other.mkdir()
@@ -52,7 +52,7 @@ def test_targets_case_insensitive(project):
     assert (sitl.is_sitl, sitl.make_vars, sitl.board) == (True, {"TARGET": "SITL"}, "SITL")
     board = resolve_target(project, "SpeedyBeeF7V3")
     assert board.make_vars == {"CONFIG": "SPEEDYBEEF7V3"}
-    assert (board.name, board.board, board.mcu) == ("speedybeef7v3", "SPEEDYBEEF7V3", "STM32F7X2")
+    assert (board.name, board.board, board.mcu) == ("speedybeef7v3", "SPEEDYBEEF7V3", "STM32F722")
     discovered = resolve_target(project, "myboard")
     assert (discovered.make_vars, discovered.board) == ({"CONFIG": "MyBoard"}, "MyBoard")
 
@@ -65,8 +65,16 @@ def test_unknown_target_lists_the_known_ones(project):
 def test_board_with_the_wrong_mcu_is_refused(project):
     header = project.config_dir / "configs" / "SPEEDYBEEF7V3" / "config.h"
     header.write_text("#define FC_TARGET_MCU STM32F405\n#define BOARD_NAME SPEEDYBEEF7V3\n")
-    with pytest.raises(UsageError, match="STM32F7X2 board"):
+    with pytest.raises(UsageError, match="STM32F722 board"):
         resolve_target(project, "speedybeef7v3")
+
+
+@pytest.mark.parametrize("name", ["STM32F7X2", "STM32F722"])
+def test_the_board_mcu_by_either_versions_name(project, name):
+    """2025.12 names the F722 target STM32F7X2, 2026.6 by its part (#15470)."""
+    header = project.config_dir / "configs" / "SPEEDYBEEF7V3" / "config.h"
+    header.write_text(f"#define FC_TARGET_MCU {name}\n#define BOARD_NAME SPEEDYBEEF7V3\n")
+    assert resolve_target(project, "speedybeef7v3").mcu == name
 
 
 def test_flags_become_defines():

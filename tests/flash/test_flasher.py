@@ -17,6 +17,7 @@ import pytest
 
 from tests.conftest import fc_settings, run_cli
 from tests.fc.faulty_transport import InjectFaults
+from tests.fc.stand_in import identity_replies, msp_stand_in
 from tests.flash.emulator import EmulatedBootloader
 from tests.flash.images import (
     CONFIG_SECTOR,
@@ -30,9 +31,11 @@ from tests.flash.images import (
 )
 from tests.flash.virtual_board import SPEEDYBEEF7V3, VirtualBoard
 from wftool.cli import fc as fc_commands
-from wftool.errors import FlashError, UsageError
+from wftool.errors import FlashError, UnsupportedFirmware, UsageError
+from wftool.fc.board import SerialBoard
 from wftool.fc.msp import BoardInfo, BuildInfo, MspClient
-from wftool.fc.params import apply_plan, plan_from_assignments
+from wftool.fc.params import apply_plan
+from wftool.fc.plan import plan_from_assignments
 from wftool.firmware import BuildResult
 from wftool.firmware.manifest import BuildFlags, Manifest
 from wftool.firmware.project import PROJECT_ENV
@@ -322,6 +325,43 @@ def test_default_firmware_is_the_newest_build_for_this_board(tmp_path: Path) -> 
     assert find_manifest(tmp_path / "build", generic) is not None
     assert other.exists()
     assert find_manifest(tmp_path / "nothing", board) is None
+
+
+@pytest.mark.parametrize("built_for", ["STM32F7X2", "STM32F722"])
+def test_a_board_of_either_versions_mcu_name_takes_a_build_of_the_other(
+    tmp_path: Path, built_for: str
+) -> None:
+    """2025.12 reports the F722 target as STM32F7X2, 2026.6 as STM32F722 (#15470): the same
+    part, so a board on either takes a build of either; another part is still refused."""
+    hex_path = firmware_hex(tmp_path / "fw.hex", BuildInfo("Jan  1 2026", "00:00:00", "0000000"))
+    manifest = _manifest(tmp_path / "build" / "sb", hex_path, mcu=built_for)
+    for reported in ("STM32F7X2", "STM32F722"):
+        board = BoardInfo("S7X2", 0, 0, reported, "", "", 0)  # no board name: by the MCU
+        assert find_manifest(tmp_path / "build", board) == Manifest.load(manifest)
+        firmware = resolve_firmware(manifest, None, board)
+        assert firmware.compatibility_problems(board) == []
+        assert firmware.mcu_flash(board).config_address == 0x0800_4000
+    other = BoardInfo("S405", 0, 0, "STM32F405", "", "", 0)
+    problems = resolve_firmware(manifest, None, other).compatibility_problems(other)
+    assert problems == [f"built for {built_for}, the FC is STM32F405"]
+
+
+def test_an_fc_on_a_firmware_wftool_does_not_know_is_not_flashed_without_a_backup(
+    tmp_path: Path,
+) -> None:
+    """A STAND-IN answering MSP as upstream master does: its `diff all` cannot be proven
+    complete, so nothing happens; the message says how to flash it all the same."""
+    hex_path = firmware_hex(tmp_path / "fw.hex", BuildInfo("Jan  1 2026", "00:00:00", "0000000"))
+    with (
+        msp_stand_in(identity_replies("2026.12.0", (1, 49))) as url,
+        pytest.raises(
+            UnsupportedFirmware,
+            match=r"the FC runs BTFL 2026\.12\.0 .*; so its "
+            r"configuration cannot be backed up: .* `wftool flash --no-reboot",
+        ),
+    ):
+        flash_firmware(SerialBoard(url), hex_path, backup_dir=tmp_path / "b")
+    assert not (tmp_path / "b").exists()
 
 
 def test_bad_manifest_is_a_usage_error(tmp_path: Path) -> None:

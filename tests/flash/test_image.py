@@ -20,7 +20,7 @@ from wftool.flash.image import (
     write_regions,
 )
 
-F7X2 = MCU_FLASH["STM32F7X2"]
+F722 = MCU_FLASH["STM32F722"]
 
 
 def test_f722_bootloader_layout_string_matches_the_table() -> None:
@@ -38,7 +38,7 @@ def test_f722_bootloader_layout_string_matches_the_table() -> None:
 
 
 def test_config_sector_is_sector_1() -> None:
-    assert F7X2.config_sector == 1
+    assert F722.config_sector == 1
     assert STM32F72X.sector_start(1) == 0x0800_4000
 
 
@@ -48,12 +48,12 @@ def test_built_hex_skips_the_config_sector(built_hex: Path) -> None:
     assert [r.address for r in regions] == [0x0800_0000, 0x0800_8000]
     assert sum(len(r.data) for r in regions) == sum(end - start for start, end in image.segments())
     erased = erased_sectors(regions, STM32F72X)
-    assert F7X2.config_sector not in erased
+    assert F722.config_sector not in erased
     assert 0 in erased and 2 in erased
-    assert contains_string(image, "STM32F7X2")
-    assert not contains_string(image, "STM32F7X")  # whole strings only
-    assert contains_string(image, "STM32F7X", whole=False)
-    assert not contains_string(image, "STM32F7X\ufffd")  # a name MSP decoding replaced
+    assert contains_string(image, "STM32F722")
+    assert not contains_string(image, "STM32F72")  # whole strings only
+    assert contains_string(image, "STM32F72", whole=False)
+    assert not contains_string(image, "STM32F72\ufffd")  # a name MSP decoding replaced
 
 
 def test_a_bin_of_the_same_build_covers_the_config_sector(built_hex: Path, tmp_path: Path) -> None:
@@ -63,7 +63,7 @@ def test_a_bin_of_the_same_build_covers_the_config_sector(built_hex: Path, tmp_p
     image.tobinfile(str(binary), start=STM32F72X.base)
     regions = write_regions(load_image(binary), STM32F72X)
     assert len(regions) == 1
-    assert F7X2.config_sector in erased_sectors(regions, STM32F72X)
+    assert F722.config_sector in erased_sectors(regions, STM32F72X)
 
 
 def test_segments_sharing_a_sector_become_one_download() -> None:
@@ -98,7 +98,7 @@ def test_unreadable_firmware_is_a_usage_error(tmp_path: Path) -> None:
 
 
 def test_a_betaflight_image_starts_with_a_vector_table(built_hex: Path) -> None:
-    assert vector_table_problem(load_image(built_hex), STM32F72X.base, F7X2) is None
+    assert vector_table_problem(load_image(built_hex), STM32F72X.base, F722) is None
 
 
 @pytest.mark.parametrize(
@@ -115,5 +115,5 @@ def test_a_betaflight_image_starts_with_a_vector_table(built_hex: Path) -> None:
 def test_vector_table_problems(vectors: tuple[int, int], problem: str | None) -> None:
     image = IntelHex()
     image.puts(0x0800_0000, struct.pack("<II", *vectors) + bytes(0x200))
-    found = vector_table_problem(image, 0x0800_0000, F7X2)
+    found = vector_table_problem(image, 0x0800_0000, F722)
     assert found == problem if problem is None else (found or "").startswith(problem)

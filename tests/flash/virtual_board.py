@@ -51,8 +51,8 @@ class BoardIdentity:
     manufacturer: str
 
 
-SPEEDYBEEF7V3 = BoardIdentity("F722", "STM32F7X2", "SPEEDYBEEF7V3", "SPBE")
-"""TARGET_BOARD_IDENTIFIER of STM32F7X2, and targets/configs/SPEEDYBEEF7V3/config.h."""
+SPEEDYBEEF7V3 = BoardIdentity("F722", "STM32F722", "SPEEDYBEEF7V3", "SPBE")
+"""TARGET_BOARD_IDENTIFIER of STM32F722, and targets/configs/SPEEDYBEEF7V3/config.h."""
 
 
 class VirtualBoard:

@@ -310,7 +310,7 @@ def test_a_first_pass_that_runs_the_gyro_at_once_leaves_the_fc_running(
 
 
 def test_the_sitl_says_how_late_the_host_ran_it(virtual_fc: VirtualFC) -> None:
-    """Lateness totals from the first instant the clock waited for (patch 0015)."""
+    """Lateness totals from the first instant the clock waited for (patch 0014)."""
     assert wait_for(lambda: read_lateness(virtual_fc.log_path), 5)
     first = read_lateness(virtual_fc.log_path)[0]
     assert first.waits >= 1 and first.max_us >= 0

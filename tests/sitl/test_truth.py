@@ -1,5 +1,5 @@
 """The virtual FC's true clock read from a SITL log (`wftool.sitl.truth`): anchors, epochs,
-wraps. The log lines are the exact format patch 0003 prints; the SITL itself is used in
+wraps. The log lines are the exact format patch 0002 prints; the SITL itself is used in
 tests/bench/test_latency.py."""
 
 from __future__ import annotations

@@ -48,10 +48,11 @@ class HostCost:
     process_ns_per_sample_axis: float
     total_ns_per_sample_axis: float
     """(update + process) / 3: what one axis of one sample costs."""
-    biquad_ns: float
-    """One biquadFilterApply(), the reference timed in the same run."""
-    biquads: float
-    """The cost per sample and axis in biquadFilterApply() calls (median of the chunks)."""
+    notch_ns: float
+    """One svfNotchApply() (Betaflight's notch, one sample of one axis), the reference timed
+    in the same run."""
+    notches: float
+    """The cost per sample and axis in svfNotchApply() calls (median of the chunks)."""
     repeats: int
 
 
@@ -315,13 +316,13 @@ def host_cost(
     """Median wall times per sample of the filter's two functions and of the reference.
 
     The flight is timed in chunks of TIMING_CHUNK samples, each chunk's update, process
-    and reference biquad back to back, REPEAT times over: on a shared machine a chunk
+    and reference notch back to back, REPEAT times over: on a shared machine a chunk
     (tens of µs) is rarely preempted, and the medians over all chunks drop those that
-    were. The ratio to biquadFilterApply() is the median of the per-chunk ratios.
+    were. The ratio to svfNotchApply() is the median of the per-chunk ratios.
     """
     motors = np.ascontiguousarray(flight.motor_hz, dtype=np.float32)
     raw = np.ascontiguousarray(flight.raw, dtype=np.float32)
-    update, process, biquad, ratios = [], [], [], []
+    update, process, notch, ratios = [], [], [], []
     for _ in range(repeat):
         host_filter = harness.filter(settings, flight.sample_rate_hz, motors.shape[1])
         samples = raw.copy()
@@ -330,16 +331,16 @@ def host_cost(
             part = slice(start, start + TIMING_CHUNK)
             update.append(host_filter.time_update_ns(motors[part]) / TIMING_CHUNK)
             process.append(host_filter.time_process_ns(samples[part]) / (3 * TIMING_CHUNK))
-            one = harness.time_biquad_ns(reference[3 * start : 3 * (start + TIMING_CHUNK)])
-            biquad.append(one / (3 * TIMING_CHUNK))
-            ratios.append((update[-1] / 3 + process[-1]) / biquad[-1])
+            one = harness.time_notch_ns(reference[3 * start : 3 * (start + TIMING_CHUNK)])
+            notch.append(one / (3 * TIMING_CHUNK))
+            ratios.append((update[-1] / 3 + process[-1]) / notch[-1])
     update_ns, process_ns = median(update), median(process)
     return HostCost(
         update_ns_per_sample=update_ns,
         process_ns_per_sample_axis=process_ns,
         total_ns_per_sample_axis=update_ns / 3 + process_ns,
-        biquad_ns=median(biquad),
-        biquads=median(ratios),
+        notch_ns=median(notch),
+        notches=median(ratios),
         repeats=repeat,
     )
 
@@ -386,11 +387,11 @@ def m7_cost(
 
 
 def m7_reference_check(m7: M7Harness) -> dict[str, object]:
-    """biquadFilterApply(): executed instructions against its straight-line disassembly."""
-    executed = m7.biquad_apply().instructions
-    listed = m7.image.straight_line_length("biquadFilterApply")
+    """svfNotchApply(): executed instructions against its straight-line disassembly."""
+    executed = m7.notch_apply().instructions
+    listed = m7.image.straight_line_length("svfNotchApply")
     return {
-        "function": "biquadFilterApply",
+        "function": "svfNotchApply",
         "executed_instructions": executed,
         "disassembly_instructions": listed,
         "agrees": executed == listed,
@@ -445,7 +446,7 @@ def summary_rows(evaluation: Evaluation) -> list[dict[str, str]]:
                     ),
                     "host ns/sample/axis": (
                         f"{rate.host.total_ns_per_sample_axis:.1f} "
-                        f"({rate.host.biquads:.1f} biquads)"
+                        f"({rate.host.notches:.1f} notches)"
                     ),
                     "M7 µs/sample (CPU)": (
                         f"{m7.us_per_sample:.2f} ({m7.cpu_percent:.2f} %)" if m7 else "–"
@@ -491,7 +492,7 @@ def render_markdown(evaluation: Evaluation) -> str:
         "fundamental bands below; vibration dB: all vibration and sensor noise together. "
         "Phase and group delay: the effective response to the 1–50 Hz motion band "
         "(cross-spectrum over the whole flight). Host: medians over 500-sample chunks of "
-        "repeated runs; ×biquads: that cost in biquadFilterApply() calls timed in the same run.",
+        "repeated runs; ×notches: that cost in svfNotchApply() calls timed in the same run.",
         "",
         "## Attenuation (dB) against the mean motor fundamental",
         "",
@@ -558,8 +559,8 @@ def render_markdown(evaluation: Evaluation) -> str:
                     str(rate.sample_rate_hz),
                     f"{host.update_ns_per_sample:.1f}",
                     f"{host.process_ns_per_sample_axis:.1f}",
-                    f"{host.biquad_ns:.2f}",
-                    f"{host.biquads:.1f}",
+                    f"{host.notch_ns:.2f}",
+                    f"{host.notches:.1f}",
                     f"{m7.update_instructions:.0f}" if m7 else "–",
                     f"{m7.process_instructions:.0f}" if m7 else "–",
                     f"{m7.cycles_per_sample:.0f}" if m7 else "–",
@@ -574,8 +575,8 @@ def render_markdown(evaluation: Evaluation) -> str:
             "fs Hz",
             "host update ns/sample",
             "host process ns/sample/axis",
-            "host biquad ns",
-            "×biquads",
+            "host notch ns",
+            "×notches",
             "M7 update instr",
             "M7 process instr",
             "M7 cycles/sample",

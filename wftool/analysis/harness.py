@@ -29,7 +29,8 @@ HOST_SOURCE = HARNESS_DIR / "acc_rpm_harness_host.c"
 """Whole-signal runs and timing loops (host only)."""
 HOST_FLAGS = ("-O2", "-fPIC", "-shared", "-Wall", "-Wextra", "-Wl,--no-undefined")
 COEFFICIENTS_PER_NOTCH = 6
-"""b0, b1, b2, a1, a2, weight, as accHarnessCoefficients() writes them."""
+"""b0, b1, b2, a1, a2, weight, as accHarnessCoefficients() writes them: each notch's transfer
+function as a weighted biquad (the firmware's notch is a state-variable filter)."""
 
 
 SETTING_LIMITS = {
@@ -157,7 +158,7 @@ def run_compiler(command: list[str]) -> None:
 
 
 class HostHarness:
-    """The compiled library: makes filters and times the reference biquad."""
+    """The compiled library: makes filters and times the reference notch."""
 
     def __init__(self, library: Path) -> None:
         try:
@@ -177,11 +178,11 @@ class HostHarness:
         lib.accHarnessCoefficients.argtypes = [voidp, f32p]
         lib.accHarnessTimeUpdate.argtypes = [voidp, size_t, ctypes.c_int, f32p]
         lib.accHarnessTimeProcess.argtypes = [voidp, size_t, f32p]
-        lib.accHarnessTimeBiquad.argtypes = [size_t, f32p]
+        lib.accHarnessTimeNotch.argtypes = [size_t, f32p]
         for timer in (
             lib.accHarnessTimeUpdate,
             lib.accHarnessTimeProcess,
-            lib.accHarnessTimeBiquad,
+            lib.accHarnessTimeNotch,
         ):
             timer.restype = ctypes.c_double
         self.lib = lib
@@ -192,9 +193,9 @@ class HostHarness:
         """A filter set up as the firmware sets it up (accRpmFilterSetup)."""
         return HostFilter(self, settings, sample_rate_hz, motor_count)
 
-    def time_biquad_ns(self, samples: np.ndarray) -> float:
-        """Wall time of biquadFilterApply() over SAMPLES (float32, filtered in place)."""
-        return self.lib.accHarnessTimeBiquad(samples.size, _floats(samples))
+    def time_notch_ns(self, samples: np.ndarray) -> float:
+        """Wall time of svfNotchApply() over SAMPLES (float32, filtered in place)."""
+        return self.lib.accHarnessTimeNotch(samples.size, _floats(samples))
 
 
 class HostFilter:
@@ -227,7 +228,8 @@ class HostFilter:
         return samples.astype(np.float64)
 
     def coefficients(self, motor_hz: np.ndarray | None = None) -> np.ndarray:
-        """The notches' (b0, b1, b2, a1, a2, weight), motors × harmonics × 6.
+        """The notches' transfer functions as weighted biquads (b0, b1, b2, a1, a2, weight),
+        motors × harmonics × 6.
 
         With MOTOR_HZ the notches are first moved there (accRpmFilterSetMotorFrequencies).
         """

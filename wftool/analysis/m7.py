@@ -233,11 +233,11 @@ class M7Harness:
         cost = self.call("accRpmFilterProcess", _FILTER_ADDRESS, _ARGS_ADDRESS)
         return struct.unpack("<3f", self._uc.mem_read(_ARGS_ADDRESS, 12)), cost
 
-    def biquad_apply(self) -> CallCost:
-        """One biquadFilterApply() on a biquad in emulated memory (the reference function)."""
-        coefficients = struct.pack("<10f", 0.9, -1.2, 0.9, -1.2, 0.8, 0.0, 0.0, 0.0, 0.0, 1.0)
-        self._uc.mem_write(_ARGS_ADDRESS, coefficients)
-        return self.call("biquadFilterApply", _ARGS_ADDRESS, floats=(1.0,))
+    def notch_apply(self) -> CallCost:
+        """One svfNotchApply() on a notch in emulated memory (the reference function)."""
+        state = struct.pack("<5f", 0.9, 0.05, 0.06, 0.0, 0.0)  # a1, a2q, fq, ic1q, ic2
+        self._uc.mem_write(_ARGS_ADDRESS, state)
+        return self.call("svfNotchApply", _ARGS_ADDRESS, floats=(1.0,))
 
 
 def _tool(*command: str) -> str:

@@ -14,7 +14,7 @@ from rich.table import Table
 from rich.text import Text
 
 from wftool.cli.progress import BYTES, UNITS, ProgressBars
-from wftool.display import shown
+from wftool.display import printable, shown
 from wftool.errors import BuildError, PatchError, UsageError
 from wftool.firmware import (
     BuildFlags,
@@ -193,7 +193,7 @@ def _shown_path(path: Path) -> str:
 
 @click.group("patches")
 def patches_group() -> None:
-    """The Betaflight patch series in patches/ (status, apply, reset, export)."""
+    """The Betaflight patch series in patches/ (status, apply, reset, export, test, check)."""
 
 
 @patches_group.command("status")
@@ -275,15 +275,98 @@ def patches_test(names: tuple[str, ...], everything: bool, project_dir: Path | N
     with locked(project):
         runs = run_unit_tests(project, list(names) or None, everything=everything)
     for run in runs:
+        if run.not_run:
+            reason = shown(f"{run.name}: {run.not_run}")
+            out.print(Text.assemble("  ", ("n/a ", "yellow"), "  ", reason))
+            continue
         mark = ("pass", "green") if run.passed else ("FAIL", "red")
         out.print(Text.assemble("  ", mark, "  ", shown(run.name)))
         if not run.passed:
             for line in run.output[-3000:].splitlines():
                 out.print(shown(line))
-    failed = [run.name for run in runs if not run.passed]
+    failed = [run.name for run in runs if not run.passed and not run.not_run]
+    not_run = [run.name for run in runs if run.not_run]
     if failed:
         raise BuildError(f"{len(failed)} of {len(runs)} unit test(s) failed: {', '.join(failed)}")
+    if not_run:
+        raise BuildError(
+            f"{len(runs) - len(not_run)} unit test(s) passed, {len(not_run)} could not be "
+            f"built: {', '.join(not_run)} (a submodule they need could not be fetched)"
+        )
     out.print(f"{len(runs)} unit test(s) passed")
+
+
+@patches_group.command("check")
+@click.option(
+    "--against", "ref", required=True, metavar="REF",
+    help="A tag (2026.6.1), a branch (master) or a commit id of Betaflight's repository.",
+)  # fmt: skip
+@click.option(
+    "--workdir", type=click.Path(file_okay=False, path_type=Path),
+    help="Keep the scratch tree here (an empty or new directory) [default: a temporary one].",
+)  # fmt: skip
+@click.option("-j", "--jobs", type=click.IntRange(1), default=2, show_default=True)
+@click.option("--apply-only", is_flag=True, help="Only apply: no SITL build, no unit tests.")
+@click.option("--markdown", is_flag=True, help="Print the table as Markdown (for docs).")
+@project_option
+def patches_check(
+    ref: str,
+    workdir: Path | None,
+    jobs: int,
+    apply_only: bool,
+    markdown: bool,
+    project_dir: Path | None,
+) -> None:
+    """The upstream canary: apply the series to REF in a scratch tree (never betaflight/),
+    patch by patch, build the SITL and run each patch's unit tests; a table per patch.
+    Exit 1 unless every patch applies, builds and passes."""
+    from wftool.firmware.canary import Applied, check_against
+
+    project = project_from(project_dir)
+    report = check_against(project, ref, workdir=workdir, jobs=jobs, build=not apply_only, log=note)
+    rows = []
+    for check in report.checks:
+        applied = check.applied.value
+        if check.applied is Applied.CONFLICT and not check.taken:
+            applied += ", left out"
+        conflicts = ", ".join(check.conflicts) if check.applied is Applied.CONFLICT else ""
+        built = {None: "—", True: "yes", False: "no"}[check.built]
+        passed = sum(run.passed for run in check.tests)
+        failed = [run.name.removeprefix("test_") for run in check.tests if not run.passed]
+        not_run = [run.name.removeprefix("test_") for run in check.tests if run.not_run]
+        tests = f"{passed}/{len(check.tests)}" if check.tests else "—"
+        if failed_run := [name for name in failed if name not in not_run]:
+            tests += f" ({', '.join(failed_run)} fail)"
+        if not_run:
+            tests += f" ({', '.join(not_run)} not built: a submodule it needs was not fetched)"
+        rows.append((check.name, applied, conflicts, built, tests))
+    title = f"the series on {ref} ({report.commit[:9]}, Betaflight {report.version})"
+    header = ("patch", "applies", "conflicts (files)", "SITL builds", "its unit tests")
+    if markdown:  # unwrapped, one line a row
+        click.echo(f"{title}:\n")
+        click.echo("| " + " | ".join(header) + " |")
+        click.echo("|" + " --- |" * len(header))
+        for row in rows:
+            click.echo(printable("| " + " | ".join(cell or " " for cell in row) + " |"))
+    else:
+        table = Table(title=title, title_justify="left")
+        for column in header:
+            table.add_column(column)
+        for row in rows:
+            table.add_row(*(shown(cell) for cell in row))
+        out.print(table)
+    out.print(
+        "A conflicting patch is taken with the series' version of the files it conflicts in "
+        "(so the patches after it meet what they were written on); its build and tests say "
+        "whether that holds."
+    )
+    shown_error = None
+    for check in report.checks:
+        if check.build_error and check.build_error != shown_error:
+            out.print(shown(f"from {check.name} on, the SITL does not build: {check.build_error}"))
+            shown_error = check.build_error
+    if not report.ok:
+        raise BuildError(f"the series does not carry over to {ref} as it is (table above)")
 
 
 @click.group("toolchain")

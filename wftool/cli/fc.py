@@ -19,10 +19,10 @@ from wftool.errors import ProtocolError, UsageError, WftoolError
 from wftool.fc.backup import DEFAULT_BACKUP_DIR
 from wftool.fc.board import Board, SerialBoard, leave_open_cli
 from wftool.fc.fsp_setup import (
-    BAUD_RATES,
     CMD_TIMEOUT_MS_DEFAULT,
     CMD_TIMEOUT_MS_RANGE,
     FAILSAFE_PROCEDURES,
+    FSP_BAUD_RATES,
     Control,
     ObcOnly,
     SafetyPilot,
@@ -32,15 +32,9 @@ from wftool.fc.fsp_setup import (
     parse_range,
 )
 from wftool.fc.msp import MspClient
-from wftool.fc.params import (
-    ChangeReport,
-    Plan,
-    Planner,
-    apply_plan,
-    plan_from_assignments,
-    plan_from_file,
-    take_backup,
-)
+from wftool.fc.params import ChangeReport, apply_plan, take_backup
+from wftool.fc.plan import Plan, Planner, plan_from_assignments, plan_from_file
+from wftool.fc.versions import version_of
 from wftool.flash import flasher
 from wftool.fsp.schedule import DEFAULT_RATE_HZ, RATE_HZ_MAX, RATE_HZ_MIN
 
@@ -164,7 +158,7 @@ def configure() -> None:
 @click.option("--uart", type=click.IntRange(1, 10), required=True, help="UART number for FSP.")
 @click.option(
     "--baud", type=int, required=True,
-    help=f"FSP baud rate: one of the FC's ({BAUD_RATES[0]} ... {BAUD_RATES[-1]}).",
+    help=f"FSP baud rate: one of the FC's ({FSP_BAUD_RATES[0]} ... {FSP_BAUD_RATES[-1]}).",
 )  # fmt: skip
 @click.option(
     "--rate",
@@ -259,7 +253,8 @@ restore = _apply_file_command(
 @click.command()
 @port_option
 def info(port: str | None) -> None:
-    """Identify the FC over MSP: firmware, board, build."""
+    """Identify the FC over MSP: firmware, board, build, and how wftool talks to it (exit 2
+    for a firmware it does not know)."""
     board = find_board(port)
     leave_open_cli(board, log)
     with MspClient.open(board.url) as msp:
@@ -271,6 +266,13 @@ def info(port: str | None) -> None:
         f"build {fc.build.git_revision} {fc.build.date} {fc.build.time}",
     ):
         console.print(shown(line))
+    version = version_of(fc)
+    console.print(
+        shown(
+            f"wftool talks to it as {version.name} (FSP serial function "
+            f"{version.fsp_function}, up to {version.fsp_baud_max} baud)"
+        )
+    )
 
 
 @click.command()

@@ -1,12 +1,14 @@
 """Configuration backups: a `diff all` plus what the CLI cannot express, in a timestamped file.
 
-Betaflight 2025.12 dropped RX_MSP from the CLI's feature names (PR #13494), so a `diff all`
-of a board whose receiver is MSP does not say so. The backup therefore records the MSP
-feature mask in a header comment, which the FC ignores and `wftool restore` reads back.
+Betaflight 2025.12 dropped RX_MSP from the CLI's feature names (PR #13494; 2026.6 names it
+again), so a `diff all` of a board whose receiver is MSP does not say so. The backup
+therefore records the MSP feature mask in a header comment, which the FC ignores and
+`wftool restore` reads back.
 
 A backup is only written once it is proven complete (`diff_problems`): it must have the
-shape of a whole `diff all` (`cli.c` printConfig) from its version line to its final
-`save`, and the version line must describe the firmware the FC reports over MSP.
+shape of a whole `diff all` (`cli.c` printConfig, with the sections of the FC's version)
+from its version line to its final `save`, and the version line must describe the firmware
+the FC reports over MSP.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from wftool.display import printable
 from wftool.errors import ProtocolError, UsageError, WftoolError
 from wftool.fc.cli_session import line_problem
 from wftool.fc.msp import BoardInfo, FcIdentity
+from wftool.fc.versions import BetaflightVersion
 
 DEFAULT_BACKUP_DIR = Path("backups")
 _HEADER_START = "# wftool backup of "
@@ -32,15 +35,7 @@ _VERSION = re.compile(
 )
 """`printVersion`: "# Betaflight / SITL (SITL) 2025.12.5 Nov 23 2026 / 01:44:50 (2efac68db)
 MSP API: 1.47"."""
-_SELECTION = re.compile(r"(profile|rateprofile) (\d+)")
-_SHAPE = (
-    "batch start",
-    "defaults nosave",
-    "# restore original profile selection",
-    "# restore original rateprofile selection",
-    "# save configuration",
-)
-"""Lines every `diff all` has, in this order (`printConfig` with DUMP_ALL | DO_DIFF)."""
+_SELECTION = re.compile(r"(\w+) (\d+)")
 
 
 def check_backup_dir(directory: Path) -> None:
@@ -57,14 +52,32 @@ def check_backup_dir(directory: Path) -> None:
         ) from exc
 
 
-def diff_problems(diff: str, fc: FcIdentity) -> list[str]:
-    """Why DIFF is not a complete `diff all` of the FC that MSP describes as FC (empty: ok)."""
+def firmware_line(lines: list[str]) -> tuple[int, str] | None:
+    """(index, Betaflight version) of a dump's version line (`# version`, then `printVersion`'s
+    line), among the comments it starts with; None when it has none."""
+    for index, line in enumerate(lines[:-1]):
+        if line.strip() and not line.startswith("#"):
+            break
+        if line.strip() == "# version" and (version := _VERSION.fullmatch(lines[index + 1])):
+            return index + 1, version["version"]
+    return None
+
+
+def _shape(version: BetaflightVersion) -> tuple[str, ...]:
+    """Lines every `diff all` has, in this order (`printConfig` with DUMP_ALL | DO_DIFF)."""
+    selections = tuple(f"# restore original {kind} selection" for kind in version.profile_kinds)
+    return ("batch start", "defaults nosave", *selections, "# save configuration")
+
+
+def diff_problems(diff: str, fc: FcIdentity, version: BetaflightVersion) -> list[str]:
+    """Why DIFF is not a complete `diff all` of the FC that MSP describes as FC, running
+    VERSION (empty: ok)."""
     lines = diff.splitlines()
     if lines[:1] != ["# version"] or len(lines) < 2:
         return ["it does not start with `# version` and the firmware's version line"]
     problems = []
-    version = _VERSION.fullmatch(lines[1])
-    if version is None:
+    printed = _VERSION.fullmatch(lines[1])
+    if printed is None:
         problems.append(f"its version line is not Betaflight's: {lines[1]!r}")
     else:
         reported = {
@@ -75,20 +88,20 @@ def diff_problems(diff: str, fc: FcIdentity) -> list[str]:
             "time": fc.build.time,
             "api": str(fc.api),
         }
-        differ = [name for name, value in reported.items() if version[name] != value]
-        if not version["revision"].startswith(fc.build.git_revision):
+        differ = [name for name, value in reported.items() if printed[name] != value]
+        if not printed["revision"].startswith(fc.build.git_revision):
             differ.append("revision")
         if differ:
             problems.append(
                 f"its version line ({', '.join(differ)}) is not what the FC reports over MSP"
             )
     position = 0
-    for expected in _SHAPE:
+    for expected in _shape(version):
         try:
             position = lines.index(expected, position) + 1
         except ValueError:
             problems.append(f"`{expected}` is missing or out of place")
-    for kind in ("profile", "rateprofile"):
+    for kind in version.profile_kinds:
         selections = (_SELECTION.fullmatch(line) for line in lines)
         numbers = [int(m[2]) for m in selections if m and m[1] == kind]
         listed = numbers[:-1]  # each profile in turn, then the one to select again
@@ -99,12 +112,14 @@ def diff_problems(diff: str, fc: FcIdentity) -> list[str]:
     return problems
 
 
-def write_backup(directory: Path, fc: FcIdentity, feature_mask: int, diff: str) -> Path:
+def write_backup(
+    directory: Path, fc: FcIdentity, version: BetaflightVersion, feature_mask: int, diff: str
+) -> Path:
     """Write a backup file named after the board and the UTC time; return its path.
 
     Refuses (`ProtocolError`, nothing written) a DIFF that is not proven complete.
     """
-    if problems := diff_problems(diff, fc):
+    if problems := diff_problems(diff, fc, version):
         raise ProtocolError(
             f"the FC's `diff all` is incomplete, so no backup was written: {'; '.join(problems)}"
         )

@@ -13,6 +13,7 @@ import time
 from dataclasses import dataclass
 
 from wftool.errors import CliCommandError, PortError, ProtocolError
+from wftool.fc.versions import VERSIONS
 from wftool.link.transport import Port, open_port, port_errors, read_size
 
 PROMPT = b"\r\n# "
@@ -43,7 +44,8 @@ _RANGE = re.compile(r"Allowed range: (-?\d+) - (-?\d+)")
 _VALUES = re.compile(r"Allowed values: (.*)")
 _ARRAY = re.compile(r"Array length: (\d+)")
 _STRING = re.compile(r"String length: (\d+) - (\d+)")
-_SCOPE = re.compile(r"(profile|rateprofile) \d+")
+_SCOPE = re.compile(rf"({'|'.join(sorted({k for v in VERSIONS for k in v.profile_kinds}))}) \d+")
+"""`get`'s line saying which profile a per-profile setting was read in, in any version."""
 
 
 @dataclass(frozen=True)
@@ -55,7 +57,8 @@ class Setting:
     constraint: str
     """The FC's line verbatim, e.g. "Allowed range: 0 - 1000" or "Allowed values: OFF, ON"."""
     scope: str | None = None
-    """"profile 0"/"rateprofile 0" for per-profile settings, None for global ones."""
+    """"profile 0"/"rateprofile 0"/"battery_profile 0" for per-profile settings, None for global
+    ones."""
 
     @property
     def int_range(self) -> tuple[int, int] | None:

@@ -18,23 +18,12 @@ from wftool.fc.modes import (
     AuxRange,
 )
 from wftool.fc.msp import FEATURE_RX_MSP, RECEIVER_FEATURES
-from wftool.fc.params import Command, FeatureChange, Plan, Planner, set_command
+from wftool.fc.plan import Command, FeatureChange, Plan, Planner, set_command
+from wftool.fc.versions import VERSIONS, BetaflightVersion
 from wftool.fsp.schedule import DEFAULT_RATE_HZ
 
-FSP_FUNCTION = 1 << 19
-MSP_FUNCTION = 1 << 0
-RX_SERIAL_FUNCTION = 1 << 6
-BAUD_RATES = (
-    9600, 19200, 38400, 57600, 115200, 230400, 250000, 400000, 460800, 500000, 921600,
-    1000000, 1500000, 2000000, 2470000,
-)  # fmt: skip
-"""Betaflight's `baudRates[]` (io/serial.c; the same in 2025.12 and 2026.6) but 0 (auto):
-the only rates a `serial` line takes. Kept here, by the FSP setup, until the FC's version
-support holds one table per release series."""
-MSP_BAUD_MAX = 1000000
-"""The highest MSP baud of a port without FSP (`serial`'s BAUD_1000000)."""
-FSP_BAUD_MAX = 2470000
-"""The patched firmware's `serial` takes up to BAUD_2470000 for a port with FSP."""
+FSP_BAUD_RATES = tuple(sorted({r for v in VERSIONS for r in v.baud_rates if r <= v.fsp_baud_max}))
+"""The rates some Betaflight wftool knows runs an FSP port at (the plan checks the FC's own)."""
 MSP_BAUD_DEFAULT = 115200
 """A port's MSP baud when FSP leaves it: Betaflight's default, which any `serial` takes."""
 CMD_TIMEOUT_MS_DEFAULT = 50
@@ -48,14 +37,6 @@ ACC_RPM_FILTER_DEFAULTS = {
     "acc_rpm_filter_fade_range_hz": "50",
     "acc_rpm_filter_q": "500",
 }
-SERIAL_FUNCTION_NAMES = {
-    1 << 0: "MSP", 1 << 1: "GPS", 1 << 2: "FRSKY_HUB", 1 << 3: "HOTT", 1 << 4: "LTM",
-    1 << 5: "SMARTPORT", 1 << 6: "RX_SERIAL", 1 << 7: "BLACKBOX", 1 << 9: "MAVLINK",
-    1 << 10: "ESC_SENSOR", 1 << 11: "SMARTAUDIO", 1 << 12: "IBUS", 1 << 13: "TRAMP",
-    1 << 14: "RCDEVICE", 1 << 15: "LIDAR_TF", 1 << 16: "FRSKY_OSD", 1 << 17: "VTX_MSP",
-    1 << 18: "GIMBAL", FSP_FUNCTION: "FSP",
-}  # fmt: skip
-"""`serialPortFunction_e` (io/serial.h), only to name what FSP replaces."""
 
 
 @dataclass(frozen=True)
@@ -86,12 +67,6 @@ class SerialPortConfig:
         return f"serial {self.port} {self.functions} {bauds}"
 
 
-def function_names(mask: int) -> str:
-    return "+".join(
-        SERIAL_FUNCTION_NAMES.get(1 << bit, f"bit {bit}") for bit in range(32) if mask >> bit & 1
-    )
-
-
 STICK_FUNCTIONS = 4
 """rcmap's first four entries: roll, pitch, yaw, throttle."""
 FAILSAFE_PROCEDURES = {"drop": "DROP", "land": "AUTO-LAND", "gps-rescue": "GPS-RESCUE"}
@@ -119,11 +94,12 @@ request, off at its 1000 µs."""
 
 
 def check_baud(baud: int) -> int:
-    """`baud`, if FSP can run at it: one of Betaflight's rates (`BAUD_RATES`) up to
-    `FSP_BAUD_MAX`; else `ValueError` saying which are."""
-    if baud not in BAUD_RATES:
-        rates = ", ".join(str(rate) for rate in BAUD_RATES)
-        raise ValueError(f"the FC takes no baud rate {baud} for a port: one of {rates}")
+    """`baud`, if some Betaflight wftool knows runs an FSP port at it (`FSP_BAUD_RATES`);
+    else
+    `ValueError` saying which rates are."""
+    if baud not in FSP_BAUD_RATES:
+        listed = ", ".join(str(rate) for rate in FSP_BAUD_RATES)
+        raise ValueError(f"the FC takes no baud rate {baud} for a port: one of {listed}")
     return baud
 
 
@@ -249,8 +225,8 @@ def fsp_planner(
     except ValueError as exc:
         raise ParameterError(str(exc)) from None
 
-    def plan(session: CliSession) -> Plan:
-        commands, notes = _fsp_port(session, uart, baud, control)
+    def plan(session: CliSession, version: BetaflightVersion) -> Plan:
+        commands, notes = _fsp_port(session, version, uart, baud, control)
         try:
             session.get("dshot_bidir")
             commands.append(set_command("dshot_bidir", "ON"))
@@ -281,9 +257,16 @@ def fsp_planner(
 
 
 def _fsp_port(
-    session: CliSession, uart: int, baud: int, control: Control
+    session: CliSession, version: BetaflightVersion, uart: int, baud: int, control: Control
 ) -> tuple[list[Command], list[str]]:
-    """The `serial` lines that give UART`uart` to FSP alone, and what they replace."""
+    """The `serial` lines that give UART`uart` to FSP alone (FSP's function bit and baud
+    rates as VERSION has them), and what they replace."""
+    if baud not in version.baud_rates or baud > version.fsp_baud_max:
+        rates = ", ".join(str(rate) for rate in version.baud_rates if rate <= version.fsp_baud_max)
+        raise ParameterError(
+            f"{baud} is not a baud rate of an FSP port on {version.name} ({rates})"
+        )
+    fsp, msp = version.fsp_function, version.serial_functions["MSP"]
     ports = {
         config.port: config
         for config in map(
@@ -296,30 +279,27 @@ def _fsp_port(
     commands: list[Command] = []
     notes: list[str] = []
     for config in ports.values():
-        if config.port != target and config.functions & FSP_FUNCTION:
-            left = replace(
-                config, functions=config.functions & ~FSP_FUNCTION, msp_baud=MSP_BAUD_DEFAULT
-            )  # FSP's rate in the MSP field would be refused without FSP (above MSP_BAUD_MAX)
-            commands.append(Command(left.command()))
+        if config.port != target and config.functions & fsp:
+            left = replace(config, functions=config.functions & ~fsp, msp_baud=MSP_BAUD_DEFAULT)
+            commands.append(Command(left.command()))  # FSP's rate refused without FSP
             notes.append(
                 f"FSP moves from {config.port} to {target} ({config.port}'s MSP baud back to "
                 f"{MSP_BAUD_DEFAULT})"
             )
-    if not any(c.functions & MSP_FUNCTION for c in ports.values() if c.port != target):
+    if not any(c.functions & msp for c in ports.values() if c.port != target):
         raise ParameterError(
             f"{target} is the FC's only MSP port; giving it to FSP would lock out MSP and the CLI"
         )
-    if isinstance(control, SafetyPilot) and ports[target].functions & RX_SERIAL_FUNCTION:
+    receiver = version.serial_functions["RX_SERIAL"]
+    if isinstance(control, SafetyPilot) and ports[target].functions & receiver:
         raise ParameterError(
             f"{target} carries the receiver (RX_SERIAL), the safety pilot's radio: give FSP "
             "another UART"
         )
-    replaced = ports[target].functions & ~FSP_FUNCTION
+    replaced = ports[target].functions & ~fsp
     if replaced:
-        notes.append(f"{target}: FSP replaces {function_names(replaced)} on this port")
-    commands.append(
-        Command(replace(ports[target], functions=FSP_FUNCTION, msp_baud=baud).command())
-    )
+        notes.append(f"{target}: FSP replaces {version.function_names(replaced)} on this port")
+    commands.append(Command(replace(ports[target], functions=fsp, msp_baud=baud).command()))
     return commands, notes
 
 

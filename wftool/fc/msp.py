@@ -68,7 +68,7 @@ CAPABILITY_RX_BIND = 1 << 6
 
 FEATURE_RX_PPM = 1 << 0
 FEATURE_RX_UDP = 1 << 1
-"""The virtual FC's simulated radio (patch 0017; SITL only)."""
+"""The virtual FC's simulated radio (the SITL's RC input; SITL only)."""
 FEATURE_RX_SERIAL = 1 << 3
 FEATURE_RX_PARALLEL_PWM = 1 << 13
 FEATURE_RX_MSP = 1 << 14
@@ -86,14 +86,16 @@ RECEIVER_FEATURES = (
 
 class ArmingDisabled(enum.IntFlag):
     """Betaflight's arming disable flags (`armingDisableFlags_e`, runtime_config.h), those
-    wftool names."""
+    wftool names; the rest keep their bits, unnamed. ARM_SWITCH is always the FC's last flag,
+    whose bit moves between versions (28 on 2025.12, 29 on 2026.6): `parse_status_ex` puts
+    it at bit 31, which no version has used."""
 
     FAILSAFE = 1 << 1
     RX_FAILSAFE = 1 << 2
     """The receiver has no signal (the OSD's RXLOSS)."""
     CLI = 1 << 13
     MSP = 1 << 16
-    ARM_SWITCH = 1 << 28
+    ARM_SWITCH = 1 << 31
     """The ARM switch was on while arming was disabled: it must go off first."""
 
 
@@ -257,7 +259,7 @@ class ApiVersion:
 
 @dataclass(frozen=True)
 class BoardInfo:
-    """MSP_BOARD_INFO. `target_name` is the MCU target (e.g. STM32F7X2), `board_name` the
+    """MSP_BOARD_INFO. `target_name` is the MCU target (e.g. STM32F722), `board_name` the
     board (e.g. SPEEDYBEEF7V3, empty on SITL)."""
 
     board_identifier: str
@@ -561,16 +563,19 @@ def parse_rc(payload: bytes) -> tuple[int, ...]:
 
 def parse_status_ex(payload: bytes) -> FcStatus:
     """MSP_STATUS_EX: the first 32 mode bits at 6, the count of further bytes at 15 and
-    those bytes, then the count of arming disable flags and their u32."""
+    those bytes, then the count of arming disable flags and their u32 (the last of them, the
+    ARM switch's, at `ArmingDisabled.ARM_SWITCH`)."""
     fields = _Fields(Cmd.STATUS_EX, payload)
     fields.unpack("HHH")  # cycle time, I2C errors, sensors
     (boxes,) = fields.unpack("I")
     fields.unpack("BHBB")  # PID profile, load, profile count, rate profile
     extra = fields.u8()
     boxes |= int.from_bytes(fields.data(extra), "little") << 32
-    fields.u8()  # the flag count
+    count = fields.u8()
     (arming,) = fields.unpack("I")
-    return FcStatus(boxes, ArmingDisabled(arming))
+    last = 1 << (count - 1) if 0 < count < 32 else 0  # ARMING_DISABLED_ARM_SWITCH
+    switch = ArmingDisabled.ARM_SWITCH if arming & last else 0
+    return FcStatus(boxes, ArmingDisabled(arming & ~last | switch))
 
 
 def parse_analog(payload: bytes) -> Analog:

@@ -1,195 +1,26 @@
 """The safe parameter workflow behind `wftool set`, `config apply`, `restore`, `configure fsp`:
 back up, validate everything with the FC, apply all or nothing, read back (the steps:
-docs/design.md).
+docs/design.md). What to change is a `wftool.fc.plan.Plan`; a script another Betaflight
+version wrote is migrated onto the FC's first (`wftool.fc.migrate`).
 """
 
 from __future__ import annotations
 
 import contextlib
-import sys
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from wftool.errors import (
-    CliCommandError,
-    ParameterError,
-    PortError,
-    UsageError,
-    WftoolError,
-)
-from wftool.fc.backup import check_backup_dir, feature_mask_of, split_backup, write_backup
+from wftool.errors import CliCommandError, ParameterError, PortError, WftoolError
+from wftool.fc.backup import check_backup_dir, write_backup
 from wftool.fc.board import Board, leave_open_cli, wait_after_drop
-from wftool.fc.cli_session import CliSession, Setting, line_problem
-from wftool.fc.msp import RECEIVER_FEATURES, MspClient
+from wftool.fc.cli_session import CliSession, Setting
+from wftool.fc.migrate import migrate
+from wftool.fc.msp import RECEIVER_FEATURES, FcIdentity, MspClient
+from wftool.fc.plan import Command, Plan, Planner
+from wftool.fc.versions import BetaflightVersion, version_of
 from wftool.link.transport import open_port
 from wftool.progress import Log, quiet
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:
-    import tomli as tomllib
-
-CONTEXT_VERBS = frozenset({"profile", "rateprofile"})
-"""Switch which PID/rate profile the following `set` lines address."""
-CONFIG_VERBS = frozenset(
-    {
-        "set", "feature", "serial", "map", "aux", "profile", "rateprofile", "defaults",
-        "resource", "timer", "dma", "beeper", "beacon", "led", "color", "mode_color",
-        "adjrange", "rxrange", "rxfail", "vtxtable", "vtx", "mixer", "mmix", "smix", "servo",
-        "board_name", "manufacturer_id", "mcu_id", "signature",
-    }
-)  # fmt: skip
-"""What a `diff all`/`dump` script contains, minus what wftool does itself (batch, save)."""
-HANDLED_BY_WFTOOL = frozenset({"batch", "save"})
-"""All-or-nothing and the final save are wftool's job; these script lines are skipped."""
-
-
-@dataclass(frozen=True)
-class Command:
-    """One CLI command to send, and where it came from (for error messages)."""
-
-    text: str
-    origin: str = ""
-    """"file.txt:12", or empty for command-line arguments."""
-
-    def __post_init__(self) -> None:
-        """Refuse, before anything is sent, what the FC's CLI would mangle."""
-        if problem := line_problem(self.text):
-            raise UsageError(f"{self.where}{self.text!r}: {problem} (nothing was changed)")
-        if self.verb == "set":
-            if "=" not in self.text:
-                raise UsageError(f"{self.where}expected `set NAME = VALUE`")
-            name, value = self.assignment()
-            if not name or not value or value.startswith("="):
-                raise UsageError(
-                    f"{self.where}`{self.text}`: expected `set NAME = VALUE` with one '=' "
-                    "between a name and a value"
-                )
-
-    @property
-    def where(self) -> str:
-        """Prefix for messages about this command."""
-        return f"{self.origin}: " if self.origin else ""
-
-    @property
-    def verb(self) -> str:
-        return self.text.split(maxsplit=1)[0].lower()
-
-    def assignment(self) -> tuple[str, str]:
-        """(name, value) of a `set name = value` command, split the way the FC splits it."""
-        name, _, value = self.text.split(maxsplit=1)[1].partition("=")
-        return name.strip(), value.strip()
-
-
-@dataclass(frozen=True)
-class FeatureChange:
-    """Feature bits to switch over MSP, for features the CLI cannot name (RX_MSP)."""
-
-    enable: int
-    disable: int
-
-    def applied_to(self, mask: int) -> int:
-        return (mask & ~self.disable) | self.enable
-
-
-@dataclass
-class Plan:
-    """What to change: CLI commands in order, and optionally feature bits via MSP."""
-
-    commands: list[Command]
-    features: FeatureChange | None = None
-    notes: list[str] = field(default_factory=list)
-    """Things the user should know before reading the result (e.g. what gets replaced)."""
-
-
-Planner = Callable[[CliSession], Plan]
-"""Builds a plan from what the FC reports, inside the workflow's CLI session."""
-
-
-def set_command(name: str, value: str, origin: str = "") -> Command:
-    return Command(f"set {name} = {value}", origin)
-
-
-def plan_from_assignments(assignments: Sequence[str]) -> Plan:
-    """`NAME=VALUE` arguments of `wftool set`."""
-    commands = []
-    for text in assignments:
-        name, equals, value = text.partition("=")
-        if not equals or not name.strip() or not value.strip() or value.startswith("="):
-            raise UsageError(f"expected NAME=VALUE, got {text!r}")
-        commands.append(set_command(name.strip(), value.strip()))
-    if not commands:
-        raise UsageError("nothing to set: give NAME=VALUE arguments")
-    return Plan(commands)
-
-
-def plan_from_file(path: Path) -> Plan:
-    """A TOML file of `name = value` pairs, or a Betaflight CLI script (e.g. `diff all`)."""
-    try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise UsageError(f"cannot read {path}: {exc}") from exc
-    if path.suffix.lower() == ".toml":
-        return _plan_from_toml(text, path.name)
-    return parse_cli_script(text, path.name)
-
-
-def _plan_from_toml(text: str, name: str) -> Plan:
-    try:
-        table = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise UsageError(f"{name}: {exc}") from exc
-    commands = []
-    for key, value in table.items():
-        if isinstance(value, bool):
-            value_text = "ON" if value else "OFF"
-        elif isinstance(value, (int, str)):
-            value_text = str(value)
-        elif isinstance(value, list) and all(isinstance(v, int) for v in value):
-            value_text = ",".join(str(v) for v in value)
-        else:
-            raise UsageError(f"{name}: {key}: use an integer, string, boolean or integer list")
-        commands.append(set_command(key, value_text, f"{name}: {key}"))
-    if not commands:
-        raise UsageError(f"{name}: no settings in it")
-    return Plan(commands)
-
-
-def parse_cli_script(text: str, name: str) -> Plan:
-    """A Betaflight CLI script: comments and batch/save skipped, unknown commands refused.
-
-    Of a wftool backup only the dump is replayed, never the header above it.
-    """
-    commands = []
-    header, lines = split_backup(text)
-    for number, raw in enumerate(lines, start=len(header) + 1):
-        line = raw.split("#", 1)[0].strip()  # the FC strips comments the same way
-        if not line:
-            continue
-        command = Command(" ".join(line.split()), f"{name}:{number}")
-        verb = command.verb
-        if verb in HANDLED_BY_WFTOOL:
-            continue
-        if verb not in CONFIG_VERBS:
-            raise UsageError(
-                f"{command.where}`{verb}` is not a configuration command wftool replays "
-                "(nothing was changed)"
-            )
-        if verb == "defaults" and command.text.lower() != "defaults nosave":
-            raise UsageError(
-                f"{command.where}only `defaults nosave` is allowed (plain `defaults` saves "
-                "and reboots)"
-            )
-        commands.append(command)
-    if not commands:
-        raise UsageError(f"{name}: no configuration commands in it")
-    mask = feature_mask_of(text)
-    features = None
-    if mask is not None:
-        receiver = mask & RECEIVER_FEATURES
-        features = FeatureChange(enable=receiver, disable=RECEIVER_FEATURES & ~receiver)
-    return Plan(commands, features)
 
 
 @dataclass(frozen=True)
@@ -216,6 +47,8 @@ class ChangeReport:
     features_ok: bool = True
     save_confirmed: bool = True
     """Whether the FC confirmed `save`; if the link dropped first, only the rows tell."""
+    migration: list[str] = field(default_factory=list)
+    """What migrating a script from another Betaflight version changed (logged as decided)."""
 
     @property
     def mismatches(self) -> list[str]:
@@ -225,16 +58,27 @@ class ChangeReport:
         return bad
 
 
-@contextlib.contextmanager
-def configuration_session(
-    board: Board, backup_dir: Path, log: Log = quiet
-) -> Iterator[tuple[CliSession, MspClient, Path]]:
-    """Connect, take a backup proven complete, and yield the CLI session, the MSP client and
-    the backup path.
+@dataclass(frozen=True)
+class Connected:
+    """An FC in its CLI inside the workflow, with its backup already written."""
 
-    The caller must leave the session (`save`/`exit`) and wait for the board. If anything
-    fails while the CLI is still open (here or in the caller's block), the FC leaves it with
-    `exit`, which reboots it and drops every unsaved change.
+    cli: CliSession
+    msp: MspClient
+    """MSP on the same link (usable after `cli.exit_noreboot()`)."""
+    backup: Path
+    fc: FcIdentity
+    version: BetaflightVersion
+    """The FC's Betaflight (`wftool.fc.versions`)."""
+
+
+@contextlib.contextmanager
+def configuration_session(board: Board, backup_dir: Path, log: Log = quiet) -> Iterator[Connected]:
+    """Connect, take a backup proven complete, and yield the FC in its CLI.
+
+    An FC running a Betaflight wftool does not know is refused before anything happens
+    (`UnsupportedFirmware`). The caller must leave the session (`save`/`exit`) and wait for
+    the board. If anything fails while the CLI is still open (here or in the caller's block),
+    the FC leaves it with `exit`, which reboots it and drops every unsaved change.
     """
     check_backup_dir(backup_dir)
     leave_open_cli(board, log)
@@ -243,10 +87,11 @@ def configuration_session(
     try:
         msp = MspClient(link)
         fc, mask = msp.identify(), msp.features()
+        version = version_of(fc)
         session.enter()
-        backup = write_backup(backup_dir, fc, mask, session.diff_all())
+        backup = write_backup(backup_dir, fc, version, mask, session.diff_all())
         log(f"backup of the current configuration: {backup}")
-        yield session, msp, backup
+        yield Connected(session, msp, backup, fc, version)
     except BaseException:
         if session.in_cli:
             leave_without_saving(session, board, log)
@@ -257,25 +102,30 @@ def configuration_session(
 
 def take_backup(board: Board, backup_dir: Path, log: Log = quiet) -> Path:
     """`wftool backup`: the proven-complete backup alone; the FC leaves its CLI (reboots)."""
-    with configuration_session(board, backup_dir, log) as (session, _msp, backup):
-        leave_without_saving(session, board, log)
-    return backup
+    with configuration_session(board, backup_dir, log) as connected:
+        leave_without_saving(connected.cli, board, log)
+    return connected.backup
 
 
 def apply_plan(
     board: Board, plan: Plan | Planner, backup_dir: Path, log: Log = quiet
 ) -> ChangeReport:
     """Run the whole safe workflow (its steps: docs/design.md)."""
-    with configuration_session(board, backup_dir, log) as (session, msp, backup):
+    with configuration_session(board, backup_dir, log) as connected:
+        session, msp, backup, version = (
+            connected.cli, connected.msp, connected.backup, connected.version
+        )  # fmt: skip
         features_before = None
         nothing_saved = (
             f"— nothing was saved; the FC drops unsaved changes on reboot (backup: {backup})"
         )
         try:
-            plan = plan(session) if callable(plan) else plan
-            for note in plan.notes:
+            plan = plan(session, version) if callable(plan) else plan
+            migration = migrate(plan, version)
+            plan = migration.plan
+            for note in migration.changes + plan.notes:
                 log(note)
-            changes = _validate(session, plan)
+            changes = _validate(session, plan, version)
             log(f"validated {len(plan.commands)} commands with the FC; applying")
             _apply(session, plan)
             if plan.features is not None:
@@ -318,14 +168,14 @@ def apply_plan(
     if still_in_cli:
         raise PortError(f"`save` did not reach the FC (it still sat in its CLI) {nothing_saved}")
     try:
-        after, features_after = _read_back(board, plan)
+        after, features_after = _read_back(board, plan, version)
     except WftoolError as exc:
         raise _after_save(exc, confirmed, backup) from exc
     rows = [
         ChangeRow(name, scope, before.value, requested, after.get((scope, name), "?"))
         for (scope, name), (before, requested) in changes.items()
     ]
-    report = ChangeReport(backup, rows, save_confirmed=confirmed)
+    report = ChangeReport(backup, rows, save_confirmed=confirmed, migration=migration.changes)
     if plan.features is not None and features_before is not None:
         expected = plan.features.applied_to(features_before)
         report.features = (features_before, features_after)
@@ -369,15 +219,15 @@ def leave_without_saving(session: CliSession, board: Board, log: Log = quiet) ->
 _Changes = dict[tuple[str | None, str], tuple[Setting, str]]
 
 
-def _validate(session: CliSession, plan: Plan) -> _Changes:
-    """Check every command against what the FC reports; change nothing.
+def _validate(session: CliSession, plan: Plan, version: BetaflightVersion) -> _Changes:
+    """Check every command against what the FC (running VERSION) reports; change nothing.
 
     Profile switches are tried for real (to check them, and to read per-profile values in
     the right profile) and the original selection is restored afterwards.
     """
     problems: list[str] = []
     changes: _Changes = {}
-    original_selection: list[str] = []
+    original_selection: dict[str, str] = {}
     feature_names: dict[str, bool] | None = None
     serial_ports: set[str] | None = None
     for command in plan.commands:
@@ -396,9 +246,11 @@ def _validate(session: CliSession, plan: Plan) -> _Changes:
             key = (setting.scope, setting.name)
             before = changes[key][0] if key in changes else setting
             changes[key] = (before, setting.canonical(value))
-        elif verb in CONTEXT_VERBS:
-            if not original_selection:
-                original_selection = [session.run("profile"), session.run("rateprofile")]
+        elif verb not in version.config_verbs:
+            problems.append(f"{command.where}`{verb}` is not a command of {version.name}")
+        elif verb in version.profile_kinds:
+            if verb not in original_selection:
+                original_selection[verb] = session.run(verb)
             try:
                 session.run(command.text)
             except CliCommandError as exc:
@@ -415,7 +267,7 @@ def _validate(session: CliSession, plan: Plan) -> _Changes:
             problem = _serial_problem(command.text, serial_ports)
             if problem:
                 problems.append(f"{command.where}{problem}")
-    for selection in original_selection:
+    for selection in original_selection.values():
         session.run(selection)
     if problems:
         raise ParameterError(f"{len(problems)} invalid, nothing changed: " + "; ".join(problems))
@@ -473,7 +325,9 @@ def _apply(session: CliSession, plan: Plan) -> None:
             raise CliCommandError(command.text, output)
 
 
-def _read_back(board: Board, plan: Plan) -> tuple[dict[tuple[str | None, str], str], int]:
+def _read_back(
+    board: Board, plan: Plan, version: BetaflightVersion
+) -> tuple[dict[tuple[str | None, str], str], int]:
     """After the save: every changed setting (by scope and name) and the feature mask."""
     link = open_port(board.url, timeout=0.05)
     try:
@@ -482,7 +336,7 @@ def _read_back(board: Board, plan: Plan) -> tuple[dict[tuple[str | None, str], s
         session.enter()
         values: dict[tuple[str | None, str], str] = {}
         for command in plan.commands:
-            if command.verb in CONTEXT_VERBS:
+            if command.verb in version.profile_kinds:
                 session.run(command.text)
             elif command.verb == "set":
                 setting = session.get(command.assignment()[0])

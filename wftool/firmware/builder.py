@@ -184,26 +184,7 @@ def prepare(
             f"{compiler.required}; building anyway (--strict-toolchain refuses)"
         )
         log(f"warning: {warnings[-1]}")
-    variables = {
-        **target.make_vars,
-        "CONFIG_DIR": str(project.config_dir),
-        # Betaflight checks the arm-none-eabi-gcc on PATH; these make it check ours instead,
-        # and let SITL (host gcc) build without any ARM compiler installed.
-        "GCC_VERSION": compiler.version,
-        "GCC_REQUIRED_VERSION": compiler.version,
-    }
-    if not target.is_sitl:
-        variables["ARM_SDK_PREFIX"] = compiler.prefix
-        # Betaflight would embed the wftool checkout's git HEAD; the board file's hash is
-        # what identifies the board definition, and keeps builds reproducible across commits.
-        variables["CONFIG_REVISION_DEFINE"] = (
-            f"-D'__CONFIG_REVISION__=\"{_board_config_sha256(target)[:7]}\"'"
-        )
-    defines = options.flags.compiler_defines() + [f"-D{d}" for d in target.defines]
-    if defines:
-        variables["EXTRA_FLAGS"] = " ".join(defines)
-    if options.flags.debug:
-        variables["DEBUG"] = "GDB"
+    variables = make_variables(target, project.config_dir, compiler, options.flags)
     # The object directory is per compiler and flags. Not per board config hash: make's
     # dependency files already recompile what includes config.h (and version.o is handled).
     compile_settings = {k: v for k, v in variables.items() if k != "CONFIG_REVISION_DEFINE"}
@@ -224,6 +205,41 @@ def prepare(
     )
     make.write_hook(command.hook)
     return Prepared(project, target, compiler, command, object_dir, options.flags, warnings)
+
+
+OFFLINE = {"AUTOHYDRATE_SUBMODULES": "", "AUTOHYDRATE_STAMPS": ""}
+"""Betaflight 2026.6 would clone the submodules it hydrates (src/config, libcanard) from
+GitHub for a build: wftool's boards are in targets/, and builds stay offline (harmless
+before 2026.6)."""
+
+
+def make_variables(
+    target: Target, config_dir: Path, compiler: Toolchain, flags: BuildFlags
+) -> dict[str, str]:
+    """The make variables of a build of TARGET from a Betaflight tree (but where its objects
+    go): the target, the board configs, the compiler, the flags."""
+    variables = {
+        **target.make_vars,
+        "CONFIG_DIR": str(config_dir),
+        # Betaflight checks the arm-none-eabi-gcc on PATH; these make it check ours instead,
+        # and let SITL (host gcc) build without any ARM compiler installed.
+        "GCC_VERSION": compiler.version,
+        "GCC_REQUIRED_VERSION": compiler.version,
+        **OFFLINE,
+    }
+    if not target.is_sitl:
+        variables["ARM_SDK_PREFIX"] = compiler.prefix
+        # Betaflight would embed the wftool checkout's git HEAD; the board file's hash is
+        # what identifies the board definition, and keeps builds reproducible across commits.
+        variables["CONFIG_REVISION_DEFINE"] = (
+            f"-D'__CONFIG_REVISION__=\"{_board_config_sha256(target)[:7]}\"'"
+        )
+    defines = flags.compiler_defines() + [f"-D{d}" for d in target.defines]
+    if defines:
+        variables["EXTRA_FLAGS"] = " ".join(defines)
+    if flags.debug:
+        variables["DEBUG"] = "GDB"
+    return variables
 
 
 def find_toolchain(project: Project, target: Target, options: BuildOptions) -> Toolchain:

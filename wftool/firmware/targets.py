@@ -12,16 +12,22 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from wftool.errors import UsageError
+from wftool.fc.versions import mcu_part
 from wftool.firmware.project import Project
 
 SITL = "sitl"
 
-KNOWN_BOARD_MCUS = {"SPEEDYBEEF7V3": "STM32F7X2"}
-"""Boards the lab flies, with the MCU their config.h must name (a guard against a wrong file)."""
+KNOWN_BOARD_PARTS = {"SPEEDYBEEF7V3": "STM32F722"}
+"""Boards the lab flies, with the MCU part their config.h must name (by the target name of
+any Betaflight version: `wftool.fc.versions.mcu_part`), a guard against a wrong file."""
 
-SITL_DEFINES = ("USE_LATE_TASK_STATISTICS",)
-"""The virtual FC does not run in real time, so its `tasks` also reports run counts (reset
-by each `tasks`): the exact loop rate over a window, which the stream tests compare with."""
+SITL_DEFINES = ("USE_LATE_TASK_STATISTICS", "ENABLE_GAZEBO_BRIDGE=0", "SITL_ATTITUDE_DIRECT")
+"""USE_LATE_TASK_STATISTICS: the virtual FC does not run in real time, so its `tasks` also
+reports run counts (reset by each `tasks`): the exact loop rate over a window, which the
+stream tests compare with. ENABLE_GAZEBO_BRIDGE=0 and SITL_ATTITUDE_DIRECT: the simulator
+input keeps its axes and the attitude is the simulator's quaternion, as `sitl.session`'s
+motion sends them (Betaflight 2026.6's SITL otherwise applies the Gazebo plugin's frame
+transforms and runs its own attitude estimator on the virtual IMU)."""
 
 _DEFINE = r"^\s*#\s*define\s+{name}\s+(\S+)"
 
@@ -35,7 +41,8 @@ class Target:
     board: str
     """BOARD_NAME as the flight controller reports it over MSP ("SITL" for the simulator)."""
     mcu: str
-    """The Betaflight MCU target (FC_TARGET_MCU), e.g. STM32F7X2; "SITL" for the simulator."""
+    """The Betaflight MCU target (FC_TARGET_MCU), e.g. STM32F7X2 (2025.12) or STM32F722
+    (2026.6); "SITL" for the simulator."""
     config: str | None = None
     """The directory name under targets/configs/ that make's CONFIG= selects; None for SITL."""
     config_header: Path | None = None
@@ -75,7 +82,7 @@ def resolve_target(project: Project, name: str) -> Target:
     directory = boards.get(name.upper())
     if directory is None:
         hint = ""
-        if name.upper() in KNOWN_BOARD_MCUS:
+        if name.upper() in KNOWN_BOARD_PARTS:
             hint = f" (expected targets/configs/{name.upper()}/config.h in {project.root})"
         raise UsageError(
             f"unknown target {name!r}{hint}; known: {', '.join(known_targets(project))}"
@@ -86,8 +93,8 @@ def resolve_target(project: Project, name: str) -> Target:
     if mcu is None:
         raise UsageError(f"{header} does not define FC_TARGET_MCU")
     board = _define(text, "BOARD_NAME") or directory.name
-    expected = KNOWN_BOARD_MCUS.get(board.upper())
-    if expected is not None and expected != mcu:
+    expected = KNOWN_BOARD_PARTS.get(board.upper())
+    if expected is not None and expected != mcu_part(mcu):
         raise UsageError(f"{header} names MCU {mcu}, but {board} is an {expected} board")
     return Target(
         name=directory.name.lower(),

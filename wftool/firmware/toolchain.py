@@ -30,9 +30,9 @@ TOOLCHAIN_ENV = "WFTOOL_TOOLCHAIN"
 ARM_GCC = "arm-none-eabi-gcc"
 
 PINNED_SHA256 = {
-    # ARM GNU Toolchain 13.3.rel1, the release Betaflight 2025.12 names. The values are those
-    # ARM publishes in the .sha256asc files beside each archive, as reproduced by several
-    # independent public build recipes (nixpkgs, Homebrew formulae, Dockerfiles).
+    # ARM GNU Toolchain 13.3.rel1, the release Betaflight 2025.12 and 2026.6 name. The values
+    # are those ARM publishes in the .sha256asc files beside each archive, as reproduced by
+    # several independent public build recipes (nixpkgs, Homebrew formulae, Dockerfiles).
     "arm-gnu-toolchain-13.3.rel1-x86_64-arm-none-eabi.tar.xz": (
         "95c011cee430e64dd6087c75c800f04b9c49832cc1000127a92a97f9c8d83af4"
     ),

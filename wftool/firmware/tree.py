@@ -206,7 +206,7 @@ def excluded_paths(repo: Path, commit: str, target: Target) -> list[str]:
 
 
 def mcu_layout(repo: Path, commit: str, mcu: str) -> McuLayout:
-    """Find the platform and MCU family of MCU (e.g. STM32F7X2 -> STM32, STM32F7) at COMMIT."""
+    """Find the platform and MCU family of MCU (e.g. STM32F722 -> STM32, STM32F7) at COMMIT."""
     names = git_out(
         ["ls-tree", "-r", "--name-only", commit, "--", "src/platform"], repo, error=TreeError
     )

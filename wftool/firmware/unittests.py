@@ -3,7 +3,9 @@
 The series adds its tests beside Betaflight's; `series_tests` finds them from the patched
 commits, so a new test in patches/ is run without being listed anywhere. The tree is
 fetched without src/test and lib/test; running tests checks them out first. They compile
-through ccache where it is installed, as `wftool build` does.
+through ccache where it is installed, as `wftool build` does, one make per core. A test
+whose make rule cannot fetch a submodule it compiles (Betaflight 2026.6's DroneCAN tests
+clone libcanard) is reported as not run, with that reason, apart from a failure.
 """
 
 from __future__ import annotations
@@ -12,7 +14,9 @@ import os
 import re
 import shutil
 import subprocess
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 from wftool.errors import ToolchainError
@@ -23,6 +27,8 @@ from wftool.firmware.targets import SITL, resolve_target
 
 TEST_PATHS = ("src/test", "lib/test")
 _UNIT_TEST = re.compile(r"^src/test/unit/(\w+_unittest)\.cc$")
+_SUBMODULE_NOT_FETCHED = re.compile(r"^Failed to clone '(?P<path>[^']+)'", re.MULTILINE)
+"""`git submodule update`'s words when it cannot fetch a submodule (make rules of src/test)."""
 _TEST_COMPILERS = ("clang", "clang++")
 """src/test/Makefile falls back to plain clang when its preferred clang-18 is absent."""
 
@@ -32,6 +38,17 @@ class UnitTestRun:
     name: str
     passed: bool
     output: str
+    not_run: str | None = None
+    """Why the test could not be built (a submodule it needs could not be fetched); None
+    when make got to build and run it."""
+
+
+def not_run_reason(output: str) -> str | None:
+    """Why make could not build a test, from its output: a submodule it did not fetch."""
+    fetch = _SUBMODULE_NOT_FETCHED.search(output)
+    if fetch is None:
+        return None
+    return f"needs {fetch['path']}, a submodule of the Betaflight tree that could not be fetched"
 
 
 def series_tests(project: Project) -> list[str]:
@@ -54,36 +71,73 @@ def run_unit_tests(
 ) -> list[UnitTestRun]:
     """Apply the series, check out the test tree, run NAMES (default: the series' tests;
     `everything`: all of them, Betaflight's `make test`)."""
+    require_compilers()
+    tree.ensure_tree(project, resolve_target(project, SITL), allow_dirty=True)
+    patches.apply(project, override="run `wftool patches apply --force`")
+    check_out_tests(project.tree)
+    if everything:
+        names = all_tests(project)
+    chosen = names if names is not None else series_tests(project)
+    if not chosen:
+        return []
+    _fetch_test_submodules(project.tree)
+    # The first builds what every test links (gtest); then one make per core, each test's
+    # objects in a directory of its own (src/test/Makefile).
+    first = run_test(project.tree, chosen[0])
+    with ThreadPoolExecutor(max(1, os.cpu_count() or 1)) as pool:
+        rest = pool.map(partial(run_test, project.tree), chosen[1:])
+        return [first, *rest]
+
+
+def tests_of_patch(patch: Path) -> list[str]:
+    """The unit tests a patch file adds or changes (make target names)."""
+    text = patch.read_text(errors="replace")
+    found = re.findall(r"^\+\+\+ b/src/test/unit/(\w+_unittest)\.cc$", text, re.MULTILINE)
+    return sorted({f"test_{name}" for name in found})
+
+
+def require_compilers() -> None:
+    """Betaflight's unit tests build with clang; ToolchainError if it is missing."""
     missing = [c for c in _TEST_COMPILERS if shutil.which(c) is None]
     if missing:
         raise ToolchainError(
             f"Betaflight's unit tests need {' and '.join(missing)} (Debian: clang)"
         )
-    tree.ensure_tree(project, resolve_target(project, SITL), allow_dirty=True)
-    patches.apply(project, override="run `wftool patches apply --force`")
-    _check_out_tests(project.tree)
-    if everything:
-        names = all_tests(project)
-    compilers = _compilers()
-    env = {**os.environ, "CCACHE_BASEDIR": str(project.root), "CCACHE_NOHASHDIR": "true"}
-    runs = []
-    for name in names if names is not None else series_tests(project):
-        proc = subprocess.run(
-            ["make", name, *compilers],
-            cwd=project.tree,
-            env=env,
-            capture_output=True,
-            text=True,
-            errors="replace",
-            check=False,
-        )
-        runs.append(UnitTestRun(name, proc.returncode == 0, proc.stdout + proc.stderr))
-    return runs
+
+
+def run_test(repo: Path, name: str) -> UnitTestRun:
+    """`make NAME` (a unit test) in the Betaflight tree REPO, through ccache where it is
+    installed, as the firmware builds are (a second run, or another clone, compiles nothing)."""
+    env = {**os.environ, "CCACHE_BASEDIR": str(repo), "CCACHE_NOHASHDIR": "true"}
+    proc = subprocess.run(
+        ["make", name, *_compilers()],
+        cwd=repo,
+        env=env,
+        capture_output=True,
+        text=True,
+        errors="replace",
+        check=False,
+    )
+    output = proc.stdout + proc.stderr
+    passed = proc.returncode == 0
+    return UnitTestRun(name, passed, output, None if passed else not_run_reason(output))
+
+
+def _fetch_test_submodules(repo: Path) -> None:
+    """Fetch once the submodules src/test/Makefile names (its rules fetch one on demand, and
+    two makes at once would both try); one that cannot be fetched is left to its tests'
+    `not_run` reason."""
+    makefile = (repo / "src" / "test" / "Makefile").read_text(errors="replace")
+    listed = git_out(["config", "-f", ".gitmodules", "--get-regexp", r"\.path$"], repo, check=False)
+    for path in (line.split()[1] for line in listed.splitlines() if len(line.split()) == 2):
+        fetched = (repo / path).is_dir() and any((repo / path).iterdir())
+        if path in makefile and not fetched:
+            git(["submodule", "update", "--init", "--", path], repo, check=False)
 
 
 def _compilers() -> list[str]:
     """make's CC and CXX: those src/test/Makefile picks (clang-18, else clang), through ccache
-    when it is installed, as the firmware builds are (a second run compiles nothing)."""
+    when it is installed."""
     if shutil.which("ccache") is None:
         return []
     pair = ("clang-18", "clang++-18")
@@ -92,7 +146,8 @@ def _compilers() -> list[str]:
     return [f"CC=ccache {pair[0]}", f"CXX=ccache {pair[1]}"]
 
 
-def _check_out_tests(repo: Path) -> None:
+def check_out_tests(repo: Path) -> None:
+    """Widen REPO's sparse checkout by the unit tests (src/test, lib/test)."""
     excluded = tree.current_exclusions(repo)
     wanted = excluded - set(TEST_PATHS)
     if wanted != excluded:

@@ -17,10 +17,12 @@ from pathlib import Path
 
 from intelhex import IntelHex
 
-from wftool.errors import FlashError, UsageError, WftoolError
+from wftool.errors import FlashError, UnsupportedFirmware, UsageError, WftoolError
 from wftool.fc.board import Board, leave_open_cli
 from wftool.fc.msp import BoardInfo, BuildInfo, FcIdentity, MspClient, RebootMode
-from wftool.fc.params import ChangeReport, apply_plan, configuration_session, plan_from_file
+from wftool.fc.params import ChangeReport, apply_plan, configuration_session
+from wftool.fc.plan import plan_from_file
+from wftool.fc.versions import mcu_part, mcu_targets, version_of
 from wftool.firmware.manifest import FILE_NAME, Manifest
 from wftool.firmware.project import find_project
 from wftool.flash.backend import FlashBackend, Progress
@@ -47,7 +49,7 @@ class Firmware:
         """Why this image should not go on `board` (empty if it fits)."""
         problems = []
         if self.manifest:
-            if self.manifest.mcu != board.target_name:
+            if not same_mcu(self.manifest.mcu, board.target_name):
                 problems.append(f"built for {self.manifest.mcu}, the FC is {board.target_name}")
             if board.board_name and self.manifest.board != board.board_name:
                 problems.append(
@@ -70,17 +72,23 @@ class Firmware:
         )
 
     def mcu_flash(self, board: BoardInfo | None) -> McuFlash:
-        """Flash facts for this image's MCU: named by the manifest, the FC, or the image."""
+        """Flash facts for this image's MCU: named by the manifest, the FC, or the image (by
+        the target name of any Betaflight version wftool knows)."""
         names = [self.manifest.mcu] if self.manifest else []
         names += [board.target_name] if board else []
-        names += [name for name in MCU_FLASH if contains_string(self.image, name)]
+        names += sorted(name for name in mcu_targets() if contains_string(self.image, name))
         for name in names:
-            if name in MCU_FLASH:
-                return MCU_FLASH[name]
+            if (part := mcu_part(name)) in MCU_FLASH:
+                return MCU_FLASH[part]
         raise UsageError(
             f"wftool knows the flash layout of {', '.join(MCU_FLASH)} only "
             f"(this is for {', '.join(names) or 'an unknown MCU'})"
         )
+
+
+def same_mcu(one: str, other: str) -> bool:
+    """Whether two MCU target names are one part (STM32F7X2 of 2025.12 is 2026.6's STM32F722)."""
+    return one == other or (mcu_part(one) or one) == (mcu_part(other) or other)
 
 
 def find_manifest(build_dir: Path, board: BoardInfo) -> Manifest | None:
@@ -94,7 +102,7 @@ def find_manifest(build_dir: Path, board: BoardInfo) -> Manifest | None:
         if (
             (manifest.board == board.board_name)
             if board.board_name
-            else manifest.mcu == board.target_name
+            else same_mcu(manifest.mcu, board.target_name)
         ):
             return manifest
     return None
@@ -166,6 +174,13 @@ def flash_firmware(
         leave_open_cli(board, log)
         with MspClient.open(board.url) as msp:
             before = msp.identify()
+        try:
+            version_of(before)  # its backup needs to know it
+        except UnsupportedFirmware as exc:
+            raise UnsupportedFirmware(
+                f"{exc}; so its configuration cannot be backed up: to flash it all the same, "
+                "without a backup, put it in DFU mode and run `wftool flash --no-reboot FIRMWARE`"
+            ) from None
     firmware = resolve_firmware(firmware_path, build_dir, before.board if before else None)
     if firmware.manifest:
         built = firmware.manifest
@@ -200,7 +215,8 @@ def flash_firmware(
 
     backup = None
     if before is not None:
-        with configuration_session(board, backup_dir, log) as (session, msp, backup):
+        with configuration_session(board, backup_dir, log) as connected:
+            session, msp, backup = connected.cli, connected.msp, connected.backup
             session.exit_noreboot()
             mode = (
                 RebootMode.BOOTLOADER_FLASH

@@ -62,7 +62,7 @@ class FlashLayout:
 
 
 STM32F72X = FlashLayout(0x0800_0000, (16 << 10,) * 4 + (64 << 10,) + (128 << 10,) * 3)
-"""STM32F722/F732 (Betaflight target STM32F7X2): 512 KiB."""
+"""STM32F722/F732: 512 KiB."""
 
 
 @dataclass(frozen=True)
@@ -81,8 +81,9 @@ class McuFlash:
         return self.layout.sector_of(self.config_address)
 
 
-MCU_FLASH = {"STM32F7X2": McuFlash(STM32F72X, 0x0800_4000, (0x2000_0000, 0x2004_0000))}
-"""Keyed by Betaflight's target name as MSP board info reports it."""
+MCU_FLASH = {"STM32F722": McuFlash(STM32F72X, 0x0800_4000, (0x2000_0000, 0x2004_0000))}
+"""Keyed by the part; Betaflight's target names for it (which differ between versions) are
+`wftool.fc.versions.mcu_part`'s."""
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from wftool.errors import CliCommandError
 from wftool.fc.board import Board
 from wftool.fc.cli_session import CliSession
-from wftool.fc.fsp_setup import ARM_AUX, FSP_FUNCTION, OBC_AUX, SerialPortConfig
+from wftool.fc.fsp_setup import ARM_AUX, OBC_AUX, SerialPortConfig
 from wftool.fc.modes import MODE_ARM, MODE_FAILSAFE, MODE_MSP_OVERRIDE, SWITCH_LOW_US, AuxRange
 from wftool.fc.msp import (
     FEATURE_RX_MSP,
@@ -23,6 +23,7 @@ from wftool.fc.msp import (
     MspClient,
     RxConfig,
 )
+from wftool.fc.versions import version_of
 from wftool.preflight.report import Report
 from wftool.progress import Log, quiet
 
@@ -126,6 +127,7 @@ def read_settings(board: Board, log: Log = quiet) -> BoardSettings:
     (it must not be armed: Betaflight opens no CLI then)."""
     with MspClient.open(board.url) as msp:
         identity = msp.identify()
+        fsp = version_of(identity).fsp_function  # an FC wftool does not know: refused here
         features = msp.features()
         ranges = [r for r in msp.mode_ranges() if r.usable]
         rcmap = tuple(msp.request(64))
@@ -142,9 +144,7 @@ def read_settings(board: Board, log: Log = quiet) -> BoardSettings:
                 values[name] = None
         lines = filter(str.strip, session.run("serial").splitlines())
         ports = tuple(
-            config.port
-            for config in map(SerialPortConfig.parse, lines)
-            if config.functions & FSP_FUNCTION
+            config.port for config in map(SerialPortConfig.parse, lines) if config.functions & fsp
         )
     finally:
         if session.exit():

@@ -15,15 +15,15 @@ from pathlib import Path
 from wftool.errors import CliCommandError, UsageError
 from wftool.fc.cli_session import CliSession
 from wftool.fc.fsp_setup import (
-    FSP_FUNCTION,
-    MSP_FUNCTION,
     Control,
     ObcOnly,
     SafetyPilot,
     SerialPortConfig,
 )
+from wftool.fc.migrate import migrate
 from wftool.fc.msp import FEATURE_RX_MSP, FEATURE_RX_UDP, RECEIVER_FEATURES
-from wftool.fc.params import Command, FeatureChange, Plan, Planner, plan_from_file, set_command
+from wftool.fc.plan import Command, FeatureChange, Plan, Planner, plan_from_file, set_command
+from wftool.fc.versions import VERSIONS, BetaflightVersion
 from wftool.preflight.flight import LIMIT_MS
 from wftool.preflight.pilot import NoPilot, Pilot, RadioPilot
 from wftool.preflight.run import Preflight
@@ -65,23 +65,25 @@ def load_backup(path: Path) -> Backup:
     unless the backup's feature mask says the MSP receiver (the OBC alone). `UsageError`
     for a file that puts FSP on no UART of the virtual FC's."""
     plan = plan_from_file(path)
-    serial = [c for c in plan.commands if c.verb == "serial"]
-    fsp = [SerialPortConfig.parse(c.text) for c in serial]
-    fsp = [config for config in fsp if config.functions & FSP_FUNCTION]
+    serial = [SerialPortConfig.parse(c.text) for c in plan.commands if c.verb == "serial"]
+    # FSP's function bit as the Betaflight that wrote the file numbers it (any, unsaid)
+    writers = [plan.written_by.version] if plan.written_by else list(VERSIONS)
+    fsp = [c for c in serial if any(c.functions & v.fsp_function for v in writers)]
     uarts = [int(c.port[4:]) for c in fsp if c.port[4:].isdigit() and int(c.port[4:]) in SITL_UARTS]
     if not uarts:
+        bits = " or ".join(str(v.fsp_function) for v in writers)
         raise UsageError(
-            f"{path}: FSP is on no UART1-UART8 there (`serial` with function {FSP_FUNCTION}): "
+            f"{path}: FSP is on no UART1-UART8 there (`serial` with function {bits}): "
             "nothing to check (run `configure fsp` first, and back it up)"
         )
     obc_alone = plan.features is not None and bool(plan.features.enable & FEATURE_RX_MSP)
     skipped: list[str] = []
 
-    def planner(session: CliSession) -> Plan:
+    def planner(session: CliSession, version: BetaflightVersion) -> Plan:
         skipped.clear()
         commands: list[Command] = []
-        for command in plan.commands:
-            adapted = _adapted(session, command)
+        for command in migrate(plan, version).plan.commands:
+            adapted = _adapted(session, version, command)
             if adapted is None:
                 skipped.append(command.text.split(" =")[0])
             else:
@@ -94,7 +96,7 @@ def load_backup(path: Path) -> Backup:
     return Backup(path, planner, uarts[0], obc_alone, skipped)
 
 
-def _adapted(session: CliSession, command: Command) -> Command | None:
+def _adapted(session: CliSession, version: BetaflightVersion, command: Command) -> Command | None:
     """`command` as the virtual FC takes it, or None where it cannot."""
     verb = command.verb
     if verb in HARDWARE_VERBS:
@@ -112,8 +114,9 @@ def _adapted(session: CliSession, command: Command) -> Command | None:
             return None
         if int(number) not in SITL_UARTS:
             return None
-        keep = FSP_FUNCTION | MSP_FUNCTION
-        functions = config.functions & keep | (MSP_FUNCTION if int(number) == MSP_UART else 0)
+        msp = version.serial_functions["MSP"]
+        functions = config.functions & (version.fsp_function | msp)
+        functions |= msp if int(number) == MSP_UART else 0
         return Command(replace(config, functions=functions).command(), command.origin)
     if verb == "feature":
         name = command.text.split()[-1].lstrip("-").upper()

@@ -1,6 +1,7 @@
 """The virtual FC's pilot: a simulated radio on SITL's RC input (UDP, `feature RX_UDP`).
 
-Patch 0017 makes the simulator's RC port (UDP sim base + 4) a receiver like a board's radio:
+`feature RX_UDP` (Betaflight 2026.6) makes the simulator's RC port (UDP sim base + 4) a
+receiver like a board's radio:
 each packet (a double timestamp, 16 u16 channels in raw order) is one receiver frame, and
 150 ms without one is RX loss. `SimulatedRadio` sends the channels it holds at a radio's
 frame rate from a process of its own (as a radio does not stall when the program holding it

@@ -36,7 +36,9 @@ from wftool.fc.fsp_setup import (
 )
 from wftool.fc.modes import MODE_ARM, AuxRange
 from wftool.fc.msp import FEATURE_RX_UDP, MspClient
-from wftool.fc.params import Command, Plan, Planner, apply_plan, set_command
+from wftool.fc.params import apply_plan
+from wftool.fc.plan import Command, Plan, Planner, set_command
+from wftool.fc.versions import BetaflightVersion
 from wftool.fsp import DEFAULT_BAUDRATE
 from wftool.fsp.schedule import DEFAULT_RATE_HZ, frame_rate_hz
 from wftool.sitl.process import (
@@ -152,8 +154,8 @@ class MotionFeeder:
 def with_msp_baud(planner: Planner, baud: int) -> Planner:
     """`planner`, and the MSP port's baud rate set to `baud` as well."""
 
-    def plan(session: CliSession) -> Plan:
-        planned = planner(session)
+    def plan(session: CliSession, version: BetaflightVersion) -> Plan:
+        planned = planner(session, version)
         lines = filter(str.strip, session.run("serial").splitlines())
         for config in map(SerialPortConfig.parse, lines):
             if config.port == f"UART{MSP_UART}" and config.msp_baud != baud:
@@ -275,7 +277,11 @@ class VirtualFcSession:
 
     def set_msp_baud(self, baud: int) -> None:
         """Give the MSP port another baud rate, saved: the FC restarts with it."""
-        apply_plan(self.fc, with_msp_baud(lambda session: Plan([]), baud), self.workdir / "backups")
+        apply_plan(
+            self.fc,
+            with_msp_baud(lambda _session, _version: Plan([]), baud),
+            self.workdir / "backups",
+        )
         self.msp_baud = baud
 
     def serve(
@@ -342,8 +348,8 @@ def _virtual_airframe(planner: Planner, arm_switch: int | None) -> Planner:
     motor moves, so any stick held off centre while armed winds the PID sum up until
     Betaflight disarms ("runaway takeoff") within ~0.1 s."""
 
-    def plan(session: CliSession) -> Plan:
-        base = planner(session)
+    def plan(session: CliSession, version: BetaflightVersion) -> Plan:
+        base = planner(session, version)
         base.commands.append(set_command("runaway_takeoff_prevention", "OFF"))
         if arm_switch is None:
             return base

@@ -22,8 +22,8 @@
 /*
  * SpeedyBee F7 V3 (STM32F722RET6, BMI270 IMU on SPI1).
  *
- * Board definition in the Betaflight 2025.12 "config.h" format, consumed by
- * mk/config.mk (FC_TARGET_MCU selects src/platform/STM32/target/STM32F7X2)
+ * Board definition in the Betaflight 2026.6 "config.h" format, consumed by
+ * mk/config.mk (FC_TARGET_MCU selects src/platform/STM32/target/STM32F722)
  * when building with CONFIG=SPEEDYBEEF7V3 CONFIG_DIR=<wftool>/targets.
  * Pin map from the board's public documentation / published resource list.
  *
@@ -37,7 +37,7 @@
 
 #pragma once
 
-#define FC_TARGET_MCU           STM32F7X2
+#define FC_TARGET_MCU           STM32F722
 
 #define BOARD_NAME              SPEEDYBEEF7V3
 #define MANUFACTURER_ID         SPBE

@@ -32,7 +32,7 @@ enum {
     SETTING_COUNT
 };
 
-#define COEFFICIENTS_PER_NOTCH 6  // b0, b1, b2, a1, a2, weight
+#define COEFFICIENTS_PER_NOTCH 6  // b0, b1, b2, a1, a2, weight: the notch as a biquad
 
 unsigned accHarnessFilterSize(void)
 {
@@ -71,21 +71,27 @@ void accHarnessStep(accRpmFilter_t *filter, const float *motorHz, float *xyz)
     xyz[2] = value.z;
 }
 
-// The notch coefficients in use (axis 0; the other axes share them), motor-major, then harmonic:
-// [motor][harmonic][b0, b1, b2, a1, a2, weight]; harmonics the filter skips (weight 0) read weight 0.
+// The notches in use, motor-major, then harmonic: [motor][harmonic][b0, b1, b2, a1, a2, weight];
+// harmonics the filter skips (weight 0) read weight 0. Each rpmNotch_t (a state-variable filter
+// in TPT form: g = tan(pi f / fs) as f, a1 = 1 / (1 + g (g + k)), k = 1 / Q, wq = k * weight)
+// is the bilinear transform of the analog notch (s^2 + 1) / (s^2 + k s + 1) prewarped at f,
+// so its transfer function is the biquad written here: output = weight * notch + (1 - weight)
+// * input, as Betaflight's weighted biquads had it.
 int accHarnessCoefficients(const accRpmFilter_t *filter, float *out)
 {
+    const float k = 1.0f / filter->q;
     int count = 0;
     for (int motor = 0; motor < filter->motorCount; motor++) {
         for (int n = 0; n < filter->numHarmonics; n++) {
-            const biquadFilter_t *notch = &filter->notch[0][motor][n];
+            const rpmNotch_t *notch = &filter->notch[motor][n];
+            const float g2 = notch->f * notch->f;
             float *c = &out[count * COEFFICIENTS_PER_NOTCH];
-            c[0] = notch->b0;
-            c[1] = notch->b1;
-            c[2] = notch->b2;
-            c[3] = notch->a1;
-            c[4] = notch->a2;
-            c[5] = filter->weights[n] > 0.0f ? notch->weight : 0.0f;
+            c[0] = (1.0f + g2) * notch->a1;
+            c[1] = 2.0f * (g2 - 1.0f) * notch->a1;
+            c[2] = c[0];
+            c[3] = c[1];
+            c[4] = (1.0f - k * notch->f + g2) * notch->a1;
+            c[5] = filter->weights[n] > 0.0f ? notch->wq / k : 0.0f;
             count++;
         }
     }

@@ -54,14 +54,15 @@ double accHarnessTimeProcess(accRpmFilter_t *filter, size_t count, float *sample
     return nowNs() - start;
 }
 
-// Wall time (ns) of count calls of Betaflight's biquadFilterApply() (the reference: one biquad).
-double accHarnessTimeBiquad(size_t count, float *samples)
+// Wall time (ns) of count calls of Betaflight's svfNotchApply() (the reference: one notch, one
+// sample of one axis).
+double accHarnessTimeNotch(size_t count, float *samples)
 {
-    biquadFilter_t biquad;
-    biquadFilterInit(&biquad, 100.0f, 1000, 5.0f, FILTER_NOTCH, 1.0f);
+    svfNotchFilter_t notch;
+    svfNotchInit(&notch, 100.0f, 0.001f, 5.0f);
     const double start = nowNs();
     for (size_t i = 0; i < count; i++) {
-        samples[i] = biquadFilterApply(&biquad, samples[i]);
+        samples[i] = svfNotchApply(&notch, samples[i]);
     }
     return nowNs() - start;
 }

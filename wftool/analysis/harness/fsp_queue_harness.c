@@ -41,6 +41,11 @@ uint32_t millis(void)
     return harnessMs;
 }
 
+uint32_t micros(void)  // rx/msp.c stamps the MSP receiver's frames with it (Betaflight 2026.6)
+{
+    return harnessMs * 1000;
+}
+
 bool IS_RC_MODE_ACTIVE(boxId_e boxId)
 {
     UNUSED(boxId);
