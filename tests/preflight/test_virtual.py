@@ -15,6 +15,7 @@ from wftool.fc.cli_session import CliSession
 from wftool.fc.fsp_setup import ObcOnly, SafetyPilot
 from wftool.fc.msp import FEATURE_RX_UDP
 from wftool.fc.params import take_backup
+from wftool.fc.versions import BETAFLIGHT_2025_12, BETAFLIGHT_2026_6
 from wftool.preflight.virtual import load_backup, on_virtual_fc
 from wftool.sitl.session import VirtualFcSession
 
@@ -50,7 +51,7 @@ def test_a_boards_backup_loads_without_its_hardware(tmp_path: Path) -> None:
     assert backup.fsp_uart == 3 and not backup.obc_alone
     with cli_stand_in(sitl_cli) as url:
         session = CliSession.open(url)
-        plan = backup.planner(session)
+        plan = backup.planner(session, BETAFLIGHT_2025_12)  # a dump that does not say
         session.close()
     assert [c.text for c in plan.commands] == [
         "serial UART6 0 115200 57600 0 115200",  # the radio's UART: the simulated radio instead
@@ -65,6 +66,25 @@ def test_a_boards_backup_loads_without_its_hardware(tmp_path: Path) -> None:
         "set dshot_bidir", "feature RX_SERIAL", "serial VCP 1 115200 57600 0 115200",
     ]  # fmt: skip
     assert plan.features is not None and plan.features.enable == FEATURE_RX_UDP
+
+
+def test_a_backup_of_a_2025_12_board_is_migrated_onto_the_virtual_fcs_version(
+    tmp_path: Path,
+) -> None:
+    """FSP's serial function is renumbered (1 << 19 on 2025.12, 1 << 30 on 2026.6)."""
+    path = tmp_path / "board.txt"
+    path.write_text(
+        "# version\n# Betaflight / STM32F7X2 (S7X2) 2025.12.5 Jan  1 2026 / 00:00:00 "
+        "(abcdef012) MSP API: 1.47\n" + BOARD_LINES
+    )
+    backup = load_backup(path)
+    assert backup.fsp_uart == 3
+    with cli_stand_in(sitl_cli) as url:
+        session = CliSession.open(url)
+        plan = backup.planner(session, BETAFLIGHT_2026_6)
+        session.close()
+    fsp = BETAFLIGHT_2026_6.fsp_function
+    assert f"serial UART3 {fsp} 2000000 57600 0 115200" in [c.text for c in plan.commands]
 
 
 def test_a_backup_without_fsp_is_refused(tmp_path: Path) -> None:
