@@ -94,6 +94,17 @@ class TimedObc:
         self._seq_of[now] = packet.seq
         return packet
 
+    def send_at_fc(self, roll: int, after_latest_us: int) -> CommandPacket:
+        """A timed command due `after_latest_us` after the FC time of the newest frame read:
+        in the FC's own clock, whatever the OBC's clock makes of it (a loaded host's virtual
+        FC re-anchors its lockstep clock, a step the OBC's clock learns only later)."""
+        self.read(0.0)
+        assert self.frames, "no frame read yet"
+        at_us = (self.frames[-1][0] + after_latest_us) & 0xFFFFFFFF
+        packet = self.reader.sender.next((roll, 1500, 1500, 1000, 1000, 1000), at_us=at_us)
+        self.reader.port.write(encode_command(packet))
+        return packet
+
     def lock(self) -> None:
         """Immediate commands at about 100 Hz until the two-way clock is in use."""
         clock = self.decoder.clock
@@ -182,13 +193,13 @@ def test_late_expired_and_too_far_commands_are_counted(obc: TimedObc) -> None:
     """Late by less than the command timeout (50 ms): applied at once; by the timeout or
     more: expired on arrival, never applied (spec §13); due the timeout or more ahead:
     refused."""
-    past = obc.send(1301, at=time.monotonic() - 0.02)
+    past = obc.send_at_fc(1301, -20_000)
     obc.pump(0.01)
-    stale = obc.send(1304, at=time.monotonic() - 0.08)
+    stale = obc.send_at_fc(1304, -80_000)
     obc.pump(0.01)
-    far = obc.send(1302, at=time.monotonic() + 0.2)  # beyond the 50 ms timeout
+    far = obc.send_at_fc(1302, 200_000)  # beyond the 50 ms timeout
     obc.pump(0.01)
-    gone = obc.send(1303, at=time.monotonic() + 0.01)
+    gone = obc.send_at_fc(1303, round(LEAD_S * 1e6))
     obc.wait_reports([past, stale, far, gone])
     obc.pump(0.05)
     late, expired, refused, applied = (obc.reports[p.seq] for p in (past, stale, far, gone))
