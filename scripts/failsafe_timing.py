@@ -14,7 +14,6 @@ from the host's write to the MSP reply that showed it (an upper bound; the colum
 from __future__ import annotations
 
 import argparse
-import statistics
 from collections import defaultdict
 from pathlib import Path
 
@@ -22,12 +21,13 @@ from wftool.fc.fsp_setup import ObcOnly, SafetyPilot
 from wftool.preflight.report import Line, Report
 from wftool.preflight.scenarios import BY_KEY
 from wftool.preflight.virtual import on_virtual_fc
+from wftool.stats import median
 
 SETUPS = {"pilot": SafetyPilot(), "alone": ObcOnly("drop")}
 
 
 def span(values: list[float]) -> str:
-    return f"{min(values):g} / {statistics.median(values):g} / {max(values):g}"
+    return f"{min(values):g} / {median(values):g} / {max(values):g}"
 
 
 def table(setup: str, report: Report) -> list[str]:
