@@ -15,6 +15,7 @@ from collections.abc import Iterator
 import pytest
 
 from wftool.fsp import Authority, AuthorityExit, UplinkStatus
+from wftool.preflight.scenarios import RX_LOSS_MS
 from wftool.sitl.radio import (
     _RC_PACKET,
     HIGH,
@@ -24,7 +25,6 @@ from wftool.sitl.radio import (
     SimulatedRadio,
     channel_index,
 )
-from wftool.verify.preflight import RX_LOSS_MS
 
 
 @pytest.fixture
