@@ -70,9 +70,12 @@ def _serve(reads: list[bytes], ready: threading.Event, port: list[int]) -> None:
         ready.set()
         connection, _ = server.accept()
         with connection:
-            for data in reads:
+            start = time.monotonic()
+            for index, data in enumerate(reads):
                 connection.sendall(data)
-                time.sleep(0.0057)  # three packets' worth of time
+                # Three packets' worth of time after the one before, as due from the start: a
+                # loaded host that wakes late sends what is due at once, as a UART would have.
+                time.sleep(max(0.0, start + (index + 1) * 0.0057 - time.monotonic()))
             connection.recv(1)  # until the reader hangs up
 
 
