@@ -22,7 +22,7 @@ from hypothesis import strategies as st
 from mcap.reader import make_reader
 
 from tests.conftest import run_cli
-from tests.fsp.strategies import corruption, harm, state_packets, uplink_statuses
+from tests.fsp.strategies import corruption, harm, packet_lists
 from tests.fsp.test_clock import MODEL as CLOCK_MODELS
 from tests.fsp.test_clock import splice_step
 from tests.fsp.test_decoder import frame
@@ -229,15 +229,13 @@ def test_physical_units_are_the_frames_own(vectors_dir: Path, name: str) -> None
 
 
 @settings(max_examples=200, deadline=None)
-@given(
-    st.lists(state_packets, max_size=30).map(lambda ps: b"".join(map(encode_state, ps))), st.data()
-)
+@given(packet_lists(max_size=30).map(lambda ps: b"".join(map(encode_state, ps))), st.data())
 def test_any_packets_any_reads(wire: bytes, data: st.DataObject) -> None:
     check(wire, *data.draw(reads(wire)))
 
 
 @settings(max_examples=100, deadline=None)
-@given(st.lists(state_packets | uplink_statuses, max_size=30), st.data())
+@given(packet_lists(max_size=30, statuses=True), st.data())
 def test_uplink_statuses_of_both_lengths_are_counted_as_the_decoder_counts_them(
     packets: list, data: st.DataObject
 ) -> None:
@@ -250,9 +248,7 @@ def test_uplink_statuses_of_both_lengths_are_counted_as_the_decoder_counts_them(
 
 @settings(max_examples=300, deadline=None)
 @given(
-    st.lists(state_packets, min_size=1, max_size=25).map(
-        lambda ps: b"".join(map(encode_state, ps))
-    ),
+    packet_lists(min_size=1, max_size=25).map(lambda ps: b"".join(map(encode_state, ps))),
     st.lists(corruption, max_size=12),
     st.binary(max_size=300),
     st.data(),
@@ -264,7 +260,7 @@ def test_corrupted_streams(wire: bytes, harms: list, garbage: bytes, data: st.Da
 
 @settings(max_examples=200, deadline=None)
 @given(
-    st.lists(state_packets, max_size=20).map(lambda ps: b"".join(map(encode_state, ps))),
+    packet_lists(max_size=20).map(lambda ps: b"".join(map(encode_state, ps))),
     st.lists(corruption, max_size=4),
     st.data(),
 )
@@ -279,7 +275,7 @@ def test_reconnects_cut_the_chunk_across(wire: bytes, harms: list, data: st.Data
 
 @settings(max_examples=200, deadline=None)
 @given(
-    st.lists(state_packets, min_size=1, max_size=12).map(lambda ps: list(map(encode_state, ps))),
+    packet_lists(min_size=1, max_size=12).map(lambda ps: list(map(encode_state, ps))),
     st.lists(st.tuples(st.integers(0, 12), st.integers(0, 40)), max_size=6),
     st.data(),
 )

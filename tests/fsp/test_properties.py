@@ -10,6 +10,7 @@ from tests.fsp.strategies import (
     command_packets,
     corruption,
     harm,
+    packet_lists,
     state_packets,
     uplink_statuses,
 )
@@ -51,7 +52,7 @@ def test_uplink_statuses_of_both_lengths_come_between_the_state_packets(packets)
     assert decoder.stats.errors == 0
 
 
-@given(st.lists(state_packets, min_size=1, max_size=30), st.data())
+@given(packet_lists(min_size=1, max_size=30), st.data())
 def test_any_split_of_the_stream_gives_the_same_result(packets, data):
     wire = b"".join(encode_state(p) for p in packets)
     cuts = sorted(data.draw(st.lists(st.integers(0, len(wire)), max_size=50)))
@@ -66,7 +67,7 @@ def test_any_split_of_the_stream_gives_the_same_result(packets, data):
 
 @settings(max_examples=300)
 @given(
-    st.lists(state_packets, min_size=1, max_size=25),
+    packet_lists(min_size=1, max_size=25),
     st.lists(st.tuples(st.integers(0, 24), corruption), max_size=12),
     st.binary(max_size=300),
 )

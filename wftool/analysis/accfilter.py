@@ -14,7 +14,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy import signal
 
 from wftool import __version__
 from wftool.analysis import markdown, sources
@@ -228,6 +227,8 @@ def motion_response(
     motion_in: np.ndarray, motion_out: np.ndarray, sample_rate_hz: float
 ) -> tuple[np.ndarray, np.ndarray]:
     """H(f) = Σ Pxy / Σ Pxx over the axes (Welch, 2 s Hann segments): the effective response."""
+    from scipy import signal  # here, not at import: scipy.signal takes a second to import
+
     segment = int(WELCH_SECONDS * sample_rate_hz)
     cross = sum(
         signal.csd(motion_in[:, a], motion_out[:, a], fs=sample_rate_hz, nperseg=segment)[1]

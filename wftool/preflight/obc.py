@@ -313,6 +313,7 @@ class Obc:
     def _do(self, action: Callable[[], R]) -> R:
         future: concurrent.futures.Future[R] = concurrent.futures.Future()
         with self._lock:
+            self.frames.check()  # the thread has failed (its reason), so nothing will act: now
             self._actions.append((action, future))
         try:
             return future.result(ACTION_WAIT_S)
