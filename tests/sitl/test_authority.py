@@ -67,6 +67,21 @@ def flags(obc: Obc, *wanted: UplinkFlag) -> bool:
     return status is not None and all(status.has(flag) for flag in wanted)
 
 
+def asking(obc: Obc, action: ArmingAction, flag: UplinkFlag, *, on: bool) -> Callable[[], None]:
+    """Ask for `action` now and every 0.5 s until the FC's switch shows it, as an OBC does: the
+    FC takes a request only while a command of its sender is in effect (spec §14), and a
+    loaded host's OBC is now and then late past the timeout."""
+    asked: list[float] = []
+
+    def ask() -> None:
+        if flags(obc, flag) != on and (not asked or time.monotonic() - asked[-1] >= 0.5):
+            obc.reader.send_arming(action)
+            asked.append(time.monotonic())
+
+    ask()
+    return ask
+
+
 def test_the_obc_alone_arms_and_disarms_only_by_arming_requests(
     sitl_binary: Path, tmp_path: Path
 ) -> None:
@@ -87,8 +102,12 @@ def test_the_obc_alone_arms_and_disarms_only_by_arming_requests(
             assert not flags(obc, UplinkFlag.ARMED)
             obc.rc = (1500, 1500, 1500, 1000, 2000, 2000)  # aux3/aux4 high: no switch arms
             assert not obc.run_until(lambda o: flags(o, UplinkFlag.ARMED), 1.0)
-            obc.reader.send_arming(ArmingAction.ARM)
-            assert obc.run_until(lambda o: flags(o, UplinkFlag.ARMED, UplinkFlag.ARM_SWITCH), 10.0)
+            armed = obc.run_until(
+                lambda o: flags(o, UplinkFlag.ARMED, UplinkFlag.ARM_SWITCH),
+                10.0,
+                each=asking(obc, ArmingAction.ARM, UplinkFlag.ARM_SWITCH, on=True),
+            )
+            assert armed, obc.status
             obc.rc = DEFAULTS
             assert not obc.run_until(lambda o: not flags(o, UplinkFlag.ARMED), 1.0)
         finally:
@@ -102,10 +121,10 @@ def test_the_obc_alone_arms_and_disarms_only_by_arming_requests(
             )
             assert not restarted.run_until(lambda o: not flags(o, UplinkFlag.ARMED), 1.0)
             assert flags(restarted, UplinkFlag.ARM_SWITCH)  # held through the silence
-            restarted.reader.send_arming(ArmingAction.DISARM)
             disarmed = restarted.run_until(
                 lambda o: not flags(o, UplinkFlag.ARMED) and not flags(o, UplinkFlag.ARM_SWITCH),
                 5.0,
+                each=asking(restarted, ArmingAction.DISARM, UplinkFlag.ARM_SWITCH, on=False),
             )  # fmt: skip
             assert disarmed, restarted.status
         finally:
