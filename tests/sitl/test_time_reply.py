@@ -14,18 +14,27 @@ from wftool.sitl.session import VirtualFcSession
 COMMAND = (1500, 1500, 1500, 1000, 1000, 1000)
 
 
-def exchange(session: VirtualFcSession, commands: int, period_s: float = 0.02) -> StateDecoder:
-    """Send `commands` commands, one per `period_s` (more than an FSP task period, so each is
-    answered), once the stream runs; an E2 decoder pairs whatever comes back."""
+def exchange(
+    session: VirtualFcSession, commands: int, period_s: float = 0.02, *, answered: bool = False
+) -> StateDecoder:
+    """Send `commands` commands, one per `period_s` (more than an FSP task period), once the
+    stream runs; an E2 decoder pairs whatever comes back. `answered`: each fresh command
+    (all but the first) goes out only once the previous one's reply is in, or 1 s has passed:
+    the FC answers the newest command of an FSP task run (spec §10), and a loaded host would
+    otherwise now and then deliver two in one."""
     decoder = StateDecoder(time_replies=True)
     with FspReader(session.fsp_url, decoder=decoder) as reader:
         while not decoder.stats.packets:
             reader.read(0.05)
-        for _ in range(commands):
+        for k in range(commands):
+            replies = decoder.stats.time_replies
             reader.send_command(COMMAND)
-            until = time.monotonic() + period_s
-            while (left := until - time.monotonic()) > 0:
-                reader.read(left)
+            due = time.monotonic() + period_s
+            awaits = answered and k > 0
+            while (now := time.monotonic()) < due or (
+                awaits and decoder.stats.time_replies == replies and now < due + 1.0
+            ):
+                reader.read(max(due - now, 0.001))
         until = time.monotonic() + 0.5  # the last replies
         while (left := until - time.monotonic()) > 0:
             reader.read(left)
@@ -52,7 +61,7 @@ def test_time_reply_answers_every_fresh_command_once(sitl_binary: Path, tmp_path
     are fresh, and each is answered once."""
     session = VirtualFcSession(sitl_binary, tmp_path, port_base=None, time_reply=True)
     with session:
-        decoder = exchange(session, 100)
+        decoder = exchange(session, 100, answered=True)
     matcher = decoder.round_trips
     assert matcher is not None
     assert_clean(decoder)
