@@ -171,7 +171,9 @@ def _publish(bag: Path, seconds: float, namespace: str) -> None:
     rclpy.shutdown()
 
 
-def _command(topic: str, plan: list[dict[str, Any]], seconds: float) -> None:
+def _command(
+    topic: str, plan: list[dict[str, Any]], seconds: float, together: bool = False
+) -> None:
     import rclpy
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from wftool_msgs.msg import RcCommand
@@ -188,6 +190,8 @@ def _command(topic: str, plan: list[dict[str, Any]], seconds: float) -> None:
             return
         time.sleep(0.02)
     print("matched", flush=True)
+    if together:  # its twins matched too: they start their plans at once (a line on stdin)
+        sys.stdin.readline()
     # Each side discovers the other on its own: this writer has matched the node's reader, but
     # a best-effort reader drops what comes from a writer it has not matched yet (Fast DDS).
     time.sleep(1.0)
@@ -238,13 +242,18 @@ def command(
 def commanders(
     topic: str, plans: Sequence[list[dict[str, Any]]], seconds: float = 20.0
 ) -> Iterator[list[subprocess.Popen]]:
-    """`command` processes, one per plan, started together and matched with the node (each
-    then waits a second before its plan: they publish side by side); waits for them at the
-    end, unless the block ended one (a killed publisher)."""
+    """`command` processes, one per plan, started together and matched with the node; once
+    all have matched, each starts its plan a second later (they publish side by side, however
+    long a loaded host took to start one); waits for them at the end, unless the block ended
+    one (a killed publisher)."""
     verb = [sys.executable, "-m", "tests.ros2.peers", "command", topic]
     processes = [
         subprocess.Popen(
-            [*verb, json.dumps(plan), str(seconds)], cwd=REPO, stdout=subprocess.PIPE, text=True
+            [*verb, json.dumps(plan), str(seconds), "together"],
+            cwd=REPO,
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
         )
         for plan in plans
     ]
@@ -252,6 +261,10 @@ def commanders(
         for process in processes:
             assert process.stdout is not None
             assert process.stdout.readline().strip() == "matched", "a publisher found no node"
+        for process in processes:
+            assert process.stdin is not None
+            process.stdin.write("go\n")
+            process.stdin.flush()
         yield processes
         for process in processes:
             process.wait(timeout=seconds + 30)
@@ -353,7 +366,12 @@ if __name__ == "__main__":
     elif verb == "publish":
         _publish(Path(arguments[0]), float(arguments[1]), arguments[2])
     elif verb == "command":
-        _command(arguments[0], json.loads(arguments[1]), float(arguments[2]))
+        _command(
+            arguments[0],
+            json.loads(arguments[1]),
+            float(arguments[2]),
+            arguments[3:4] == ["together"],
+        )
     elif verb == "node":
         _node(arguments[0], float(arguments[1]))
     else:
