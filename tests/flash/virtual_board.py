@@ -72,6 +72,9 @@ class VirtualBoard:
         self.in_bootloader = False
         self._bridge = IdentityBridge(fc, identity) if identity else None
         self._stop = threading.Event()
+        # The watcher's reset into the bootloader and a start after one take turns: judged
+        # between them, the last process's `ResetToBootloader` would stop the FC just started.
+        self._power = threading.RLock()
         self._watcher = threading.Thread(target=self._watch, name="virtual-board", daemon=True)
 
     @property
@@ -99,6 +102,10 @@ class VirtualBoard:
     def wait_back(self, timeout: float = 10.0) -> None:
         """After a reset: the FC starts again — from the bootloader only once it has left
         and the chip started firmware that runs."""
+        with self._power:
+            self._wait_back(timeout)
+
+    def _wait_back(self, timeout: float) -> None:
         if self.in_bootloader:
             left = self.bootloader.wait_left(timeout)
             if left is None or not left.runs:
@@ -109,22 +116,26 @@ class VirtualBoard:
 
     def enter_bootloader(self) -> None:
         """The chip starts its ROM bootloader (reset into it, or BOOT held at power-up)."""
-        self.fc.stop()
-        self.in_bootloader = True
-        self._eeprom_to_config_sector()
-        self.bootloader.attach()
+        with self._power:
+            self.fc.stop()
+            self.in_bootloader = True
+            self._eeprom_to_config_sector()
+            self.bootloader.attach()
 
     def _watch(self) -> None:
         while not self._stop.wait(0.05):
             if self.in_bootloader or not self.bootloader_appears:
                 continue
-            try:
-                running = self.fc.running
-            except AttributeError:  # restarting under our feet
-                continue
-            if not running and self._last_reset() == b"[system]ResetToBootloader!":
-                time.sleep(ENUMERATION_S)
-                self.enter_bootloader()
+            with self._power:
+                try:
+                    running = self.fc.running
+                except AttributeError:  # restarting under our feet
+                    continue
+                if self.in_bootloader or running:
+                    continue
+                if self._last_reset() == b"[system]ResetToBootloader!":
+                    time.sleep(ENUMERATION_S)
+                    self.enter_bootloader()
 
     def _last_reset(self) -> bytes:
         """The latest SITL process's last `[system]Reset…` line in its log (the reason it
