@@ -79,7 +79,7 @@ def test_sitl_ros2_publishes_the_virtual_fcs_stream_while_it_verifies(
 def test_the_status_line_says_what_the_fc_made_of_the_commands():
     monitor = StreamMonitor("socket://sim:5762")
     feed_fc_uplink(monitor, 2100)  # timed out, then the pilot's radio lost
-    node = SimpleNamespace(gate=None)  # a node that takes no commands: what it did is not said
+    node = SimpleNamespace(gate=None, unpublished=0)  # takes no commands: what it did is not said
     line = status_line(monitor.summary(), node)
     assert line.startswith("4200 frames published")
     assert line.endswith(
@@ -87,3 +87,6 @@ def test_the_status_line_says_what_the_fc_made_of_the_commands():
         "failsafe RX_LOSS_DETECTED"
     )
     assert "the FC" not in status_line(StreamMonitor("x").summary(), node)
+    assert "refused" not in line
+    refused = status_line(monitor.summary(), SimpleNamespace(gate=None, unpublished=3))
+    assert "reconnects 0, 3 messages the middleware refused; the FC" in refused

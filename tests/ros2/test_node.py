@@ -318,6 +318,30 @@ def fc_status(flags: int) -> UplinkStatus:
     )  # fmt: skip
 
 
+def test_a_message_the_middleware_refuses_is_counted_and_the_stream_goes_on(bridge: Ros2Bridge):
+    """Fast DDS refuses a message when a reliable writer has waited its longest for a stalled
+    reader (rclpy's RCLError "cannot publish data"): the node counts it and publishes on."""
+    from rclpy.impl.implementation_singleton import rclpy_implementation
+
+    publish, encode = bridge._per_frame[0]
+    tried = []
+
+    def refusing_once(message: object) -> None:
+        tried.append(message)
+        if len(tried) == 1:
+            raise rclpy_implementation.RCLError("Failed to publish: cannot publish data")
+        publish(message)
+
+    bridge._per_frame[0] = (refusing_once, encode)
+    monitor = StreamMonitor("socket://sim:5762")
+    monitor.connected(0.0)
+    packets = [p for i, data in enumerate(flight(3)) for p in monitor.feed(data, 0.001 * i)]
+    frames = sum(len(p.frames) for p in packets)
+    bridge.packets(packets)
+    assert frames >= 2 and len(tried) == frames
+    assert bridge.unpublished == 1
+
+
 def test_without_accept_commands_nothing_subscribes(bridge: Ros2Bridge):
     topic = f"{bridge.options.namespace}/fsp/command"
     assert topic not in bridge.topics

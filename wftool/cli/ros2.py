@@ -184,6 +184,8 @@ def status_line(summary: StreamSummary, bridge: Ros2Bridge) -> str:
         f"lost {summary.lost_frames}, "
         f"FC drops {summary.fc_drops}, reconnects {summary.reconnects}"
     )
+    if bridge.unpublished:
+        line += f", {bridge.unpublished} messages the middleware refused"
     if bridge.gate is not None:
         counts = bridge.command_counts
         line += f"; commands {counts.received} received, {counts.sent} sent, "

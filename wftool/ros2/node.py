@@ -125,6 +125,7 @@ class Ros2Bridge:
             ) from None
         import rclpy
         from rclpy.context import Context
+        from rclpy.impl.implementation_singleton import rclpy_implementation
         from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
         from rclpy.signals import SignalHandlerOptions
 
@@ -189,6 +190,10 @@ class Ros2Bridge:
         self._last_health: StreamHealth | None = None
         self.fc_status: UplinkStatus | None = None
         """The FC's newest uplink status the node was given (who flies, its pulse range)."""
+        self._publish_failed: type[Exception] = rclpy_implementation.RCLError
+        self.unpublished = 0
+        """Frame messages the middleware refused (a reliable writer that waited its longest
+        for a stalled reader): a live stream drops them and goes on."""
         self._arming: ArmingAction | None = None
         self.gate: CommandGate | None = None
         self._executor: Any = None
@@ -250,7 +255,10 @@ class Ros2Bridge:
             for frame in packet.frames:
                 stamp = encoder.frame_stamp_ns(frame, arrival)
                 for publish, encode in self._per_frame:
-                    publish(encode(frame, stamp))
+                    try:
+                        publish(encode(frame, stamp))
+                    except self._publish_failed:
+                        self.unpublished += 1
                 if self._battery_throttle.due(stamp):
                     self._battery(encoder.battery(frame, stamp))
         if health is not None and health is not self._last_health:
