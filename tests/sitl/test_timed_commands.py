@@ -193,12 +193,14 @@ def test_late_expired_and_too_far_commands_are_counted(obc: TimedObc) -> None:
     """Late by less than the command timeout (50 ms): applied at once; by the timeout or
     more: expired on arrival, never applied (spec §13); due the timeout or more ahead:
     refused."""
-    past = obc.send_at_fc(1301, -20_000)
-    obc.pump(0.01)
     stale = obc.send_at_fc(1304, -80_000)
     obc.pump(0.01)
     far = obc.send_at_fc(1302, 200_000)  # beyond the 50 ms timeout
     obc.pump(0.01)
+    # The late one acts at once and is the OBC's newest fresh command: the one due after it
+    # goes out with it, well inside the 50 ms the FC then waits for the next (one due after
+    # the OBC timed out is expired, as a loaded host's delay between them once made it).
+    past = obc.send_at_fc(1301, -20_000)
     gone = obc.send_at_fc(1303, round(LEAD_S * 1e6))
     obc.wait_reports([past, stale, far, gone])
     obc.pump(0.05)
