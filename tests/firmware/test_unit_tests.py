@@ -12,6 +12,7 @@ from wftool.firmware.unittests import (
     UnitTestRun,
     all_tests,
     not_run_reason,
+    passed_outputs,
     run_unit_tests,
     series_tests,
 )
@@ -67,3 +68,27 @@ def test_a_submodule_make_could_not_fetch_is_a_reason_not_a_failure() -> None:
         "not be fetched"
     )
     assert not_run_reason("unit/fsp_unittest.cc:12: Failure\n[  FAILED  ] 1 test\n") is None
+
+
+def test_one_make_of_many_tests_gives_each_passed_test_its_own_output() -> None:
+    output = (
+        "compiling unit/a_unittest.cc \n"
+        "Running main() from ../../lib/test/gtest/src/gtest_main.cc\n"
+        "[  PASSED  ] 2 tests.\n"
+        "running test_a_unittest: PASS\n"
+        "compiling unit/b_unittest.cc \n"
+        "Running main() from ../../lib/test/gtest/src/gtest_main.cc\n"
+        "[  FAILED  ] 1 test, listed below:\n"
+        "make[1]: *** [Makefile:1098: test_b_unittest] Error 1\n"
+        "linking ../../obj/test/c_unittest/c_unittest \n"
+        "Running main() from ../../lib/test/gtest/src/gtest_main.cc\n"
+        "[  PASSED  ] 1 test.\n"
+        "running test_c_unittest: PASS\n"
+    )
+    passed = passed_outputs(output)
+    assert set(passed) == {"test_a_unittest", "test_c_unittest"}  # b: run again alone
+    assert passed["test_c_unittest"] == (
+        "Running main() from ../../lib/test/gtest/src/gtest_main.cc\n"
+        "[  PASSED  ] 1 test.\n"
+        "running test_c_unittest: PASS"
+    )

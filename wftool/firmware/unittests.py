@@ -3,9 +3,10 @@
 The series adds its tests beside Betaflight's; `series_tests` finds them from the patched
 commits, so a new test in patches/ is run without being listed anywhere. The tree is
 fetched without src/test and lib/test; running tests checks them out first. They compile
-through ccache where it is installed, as `wftool build` does, one make per core. A test
-whose make rule cannot fetch a submodule it compiles (Betaflight 2026.6's DroneCAN tests
-clone libcanard) is reported as not run, with that reason, apart from a failure.
+through ccache where it is installed, as `wftool build` does, in one make (one job per
+core). A test whose make rule cannot fetch a submodule it compiles (Betaflight 2026.6's
+DroneCAN tests clone libcanard) is reported as not run, with that reason, apart from a
+failure.
 """
 
 from __future__ import annotations
@@ -14,9 +15,7 @@ import os
 import re
 import shutil
 import subprocess
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from functools import partial
 from pathlib import Path
 
 from wftool.errors import ToolchainError
@@ -29,6 +28,10 @@ TEST_PATHS = ("src/test", "lib/test")
 _UNIT_TEST = re.compile(r"^src/test/unit/(\w+_unittest)\.cc$")
 _SUBMODULE_NOT_FETCHED = re.compile(r"^Failed to clone '(?P<path>[^']+)'", re.MULTILINE)
 """`git submodule update`'s words when it cannot fetch a submodule (make rules of src/test)."""
+_PASSED = re.compile(r"^running (?P<name>test_\w+): PASS$")
+"""src/test/Makefile's last line of a test that passed."""
+_GTEST_FIRST_LINE = "Running main() from "
+"""gtest_main's first line of a test's run."""
 _TEST_COMPILERS = ("clang", "clang++")
 """src/test/Makefile falls back to plain clang when its preferred clang-18 is absent."""
 
@@ -81,12 +84,35 @@ def run_unit_tests(
     if not chosen:
         return []
     _fetch_test_submodules(project.tree)
-    # The first builds what every test links (gtest); then one make per core, each test's
-    # objects in a directory of its own (src/test/Makefile).
-    first = run_test(project.tree, chosen[0])
-    with ThreadPoolExecutor(max(1, os.cpu_count() or 1)) as pool:
-        rest = pool.map(partial(run_test, project.tree), chosen[1:])
-        return [first, *rest]
+    return run_tests(project.tree, chosen)
+
+
+def run_tests(repo: Path, names: list[str]) -> list[UnitTestRun]:
+    """NAMES (unit tests) in one make in the Betaflight tree REPO, one job per core, going on
+    past a failure: src/test/Makefile takes ~2 s of CPU to read, once per make, where a
+    test that ccache compiles takes a fraction of that. A test make did not report passed
+    is run again alone (`run_test`), for its own output and the reason it was not built."""
+    proc = _make(repo, ["-k", f"-j{max(1, os.cpu_count() or 1)}", "--output-sync=target", *names])
+    passed = passed_outputs(proc.stdout)
+    return [
+        UnitTestRun(name, True, passed[name]) if name in passed else run_test(repo, name)
+        for name in names
+    ]
+
+
+def passed_outputs(output: str) -> dict[str, str]:
+    """Each passed test's output in a make's (`--output-sync`: a test's run is one block,
+    from gtest's first line to the rule's `running test_NAME: PASS`), by make target."""
+    passed: dict[str, str] = {}
+    block: list[str] = []
+    for line in output.splitlines():
+        if line.startswith(_GTEST_FIRST_LINE):
+            block = []
+        block.append(line)
+        if match := _PASSED.match(line):
+            passed[match["name"]] = "\n".join(block)
+            block = []
+    return passed
 
 
 def tests_of_patch(patch: Path) -> list[str]:
@@ -108,9 +134,20 @@ def require_compilers() -> None:
 def run_test(repo: Path, name: str) -> UnitTestRun:
     """`make NAME` (a unit test) in the Betaflight tree REPO, through ccache where it is
     installed, as the firmware builds are (a second run, or another clone, compiles nothing)."""
+    proc = _make(repo, [name])
+    output = proc.stdout + proc.stderr
+    passed = proc.returncode == 0
+    return UnitTestRun(name, passed, output, None if passed else not_run_reason(output))
+
+
+def _make(repo: Path, args: list[str]) -> subprocess.CompletedProcess[str]:
+    """make ARGS in REPO with the test compilers, without src/test/Makefile's coverage
+    instrumentation (`USE_COVERAGE=`): nothing here reads its .gcda reports, and it writes
+    the clone's absolute path into every object, which ccache then hashes (each clone
+    compiled the whole suite again)."""
     env = {**os.environ, "CCACHE_BASEDIR": str(repo), "CCACHE_NOHASHDIR": "true"}
-    proc = subprocess.run(
-        ["make", name, *_compilers()],
+    return subprocess.run(
+        ["make", *args, "USE_COVERAGE=", *_compilers()],
         cwd=repo,
         env=env,
         capture_output=True,
@@ -118,9 +155,6 @@ def run_test(repo: Path, name: str) -> UnitTestRun:
         errors="replace",
         check=False,
     )
-    output = proc.stdout + proc.stderr
-    passed = proc.returncode == 0
-    return UnitTestRun(name, passed, output, None if passed else not_run_reason(output))
 
 
 def _fetch_test_submodules(repo: Path) -> None:
