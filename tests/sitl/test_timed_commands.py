@@ -94,13 +94,18 @@ class TimedObc:
         self._seq_of[now] = packet.seq
         return packet
 
-    def send_at_fc(self, roll: int, after_latest_us: int) -> CommandPacket:
-        """A timed command due `after_latest_us` after the FC time of the newest frame read:
-        in the FC's own clock, whatever the OBC's clock makes of it (a loaded host's virtual
-        FC re-anchors its lockstep clock, a step the OBC's clock learns only later)."""
+    def latest_fc_us(self) -> int:
+        """The FC time of the newest frame read."""
         self.read(0.0)
         assert self.frames, "no frame read yet"
-        at_us = (self.frames[-1][0] + after_latest_us) & 0xFFFFFFFF
+        return self.frames[-1][0]
+
+    def send_at_fc(self, roll: int, after_us: int, since_us: int | None = None) -> CommandPacket:
+        """A timed command due `after_us` after FC time `since_us` (default: the newest
+        frame's): in the FC's own clock, whatever the OBC's clock makes of it (a loaded host's
+        virtual FC re-anchors its lockstep clock, a step the OBC's clock learns only later)."""
+        since_us = self.latest_fc_us() if since_us is None else since_us
+        at_us = (since_us + after_us) & 0xFFFFFFFF
         packet = self.reader.sender.next((roll, 1500, 1500, 1000, 1000, 1000), at_us=at_us)
         self.reader.port.write(encode_command(packet))
         return packet
@@ -273,8 +278,8 @@ def test_a_far_future_command_never_acts(obc: TimedObc) -> None:
 def test_a_flood_fills_the_queue_and_the_rest_is_refused(obc: TimedObc) -> None:
     # in one burst, each due 1.2 ms after the one before (a frame shows each), the last
     # 45 ms ahead: the FC takes four a run, applies them as they fall due
-    at = time.monotonic() + 0.010
-    flood = [obc.send(1700 + k, at=at + 0.0012 * k) for k in range(30)]
+    now_us = obc.latest_fc_us()  # in the FC's clock, as the late ones above
+    flood = [obc.send_at_fc(1700 + k, 10_000 + 1200 * k, now_us) for k in range(30)]
     obc.wait_reports(flood)
     obc.pump(0.05)
     outcomes = [CommandOutcome(obc.reports[p.seq].outcome) for p in flood]
