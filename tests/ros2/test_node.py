@@ -323,8 +323,8 @@ def test_a_message_the_middleware_refuses_is_counted_and_the_stream_goes_on(brid
     reader (rclpy's RCLError "cannot publish data"): the node counts it and publishes on."""
     from rclpy.impl.implementation_singleton import rclpy_implementation
 
-    publish, encode = bridge._per_frame[0]
-    tried = []
+    imu = next(p for p in bridge._node.publishers if p.topic_name.endswith("/fsp/imu"))
+    publish, tried = imu.publish, []
 
     def refusing_once(message: object) -> None:
         tried.append(message)
@@ -332,7 +332,7 @@ def test_a_message_the_middleware_refuses_is_counted_and_the_stream_goes_on(brid
             raise rclpy_implementation.RCLError("Failed to publish: cannot publish data")
         publish(message)
 
-    bridge._per_frame[0] = (refusing_once, encode)
+    imu.publish = refusing_once  # the middleware's answer, under the node's own publishing
     monitor = StreamMonitor("socket://sim:5762")
     monitor.connected(0.0)
     packets = [p for i, data in enumerate(flight(3)) for p in monitor.feed(data, 0.001 * i)]

@@ -12,7 +12,7 @@ import math
 import os
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -170,30 +170,40 @@ class Ros2Bridge:
             durability=DurabilityPolicy.TRANSIENT_LOCAL,
         )
         encoder = self._encoder
+        refused: type[Exception] = rclpy_implementation.RCLError
+        self.unpublished = 0
+        """Messages the middleware refused (a reliable writer that waited its longest for a
+        stalled reader): a live stream drops them and goes on."""
 
-        def publisher(topic: str, kind: msgs.MessageType, qos: Any) -> Any:
-            return node.create_publisher(_message_class(kind.name), _relative(topic), qos)
+        def publishing(publisher: Any) -> Callable[[Any], None]:
+            def publish(message: Any) -> None:
+                try:
+                    publisher.publish(message)
+                except refused:
+                    self.unpublished += 1
+
+            return publish
+
+        def publisher(topic: str, kind: msgs.MessageType, qos: Any) -> Callable[[Any], None]:
+            created: Any = node.create_publisher(_message_class(kind.name), _relative(topic), qos)
+            return publishing(created)
 
         self._per_frame = [
-            (publisher(topic, kind, stream).publish, getattr(encoder, method))
+            (publisher(topic, kind, stream), getattr(encoder, method))
             for topic, kind, method in msgs.LIVE_PER_FRAME
         ]
-        self._battery = publisher(msgs.BATTERY_TOPIC, msgs.BATTERY_STATE, latest).publish
-        self._health = publisher(msgs.HEALTH_TOPIC, msgs.STREAM_HEALTH, latest).publish
-        self._uplink_status = publisher(
-            msgs.UPLINK_STATUS_TOPIC, msgs.UPLINK_STATUS, latest
-        ).publish
-        self._status_publisher = node.create_publisher(CommandStatus, COMMAND_STATUS_TOPIC, latest)
+        self._battery = publisher(msgs.BATTERY_TOPIC, msgs.BATTERY_STATE, latest)
+        self._health = publisher(msgs.HEALTH_TOPIC, msgs.STREAM_HEALTH, latest)
+        self._uplink_status = publisher(msgs.UPLINK_STATUS_TOPIC, msgs.UPLINK_STATUS, latest)
+        self._publish_status = publishing(
+            node.create_publisher(CommandStatus, COMMAND_STATUS_TOPIC, latest)
+        )
         self._status_type = CommandStatus
         self._battery_throttle = Throttle()
         self._status_throttle = Throttle()
         self._last_health: StreamHealth | None = None
         self.fc_status: UplinkStatus | None = None
         """The FC's newest uplink status the node was given (who flies, its pulse range)."""
-        self._publish_failed: type[Exception] = rclpy_implementation.RCLError
-        self.unpublished = 0
-        """Frame messages the middleware refused (a reliable writer that waited its longest
-        for a stalled reader): a live stream drops them and goes on."""
         self._arming: ArmingAction | None = None
         self.gate: CommandGate | None = None
         self._executor: Any = None
@@ -255,10 +265,7 @@ class Ros2Bridge:
             for frame in packet.frames:
                 stamp = encoder.frame_stamp_ns(frame, arrival)
                 for publish, encode in self._per_frame:
-                    try:
-                        publish(encode(frame, stamp))
-                    except self._publish_failed:
-                        self.unpublished += 1
+                    publish(encode(frame, stamp))
                 if self._battery_throttle.due(stamp):
                     self._battery(encoder.battery(frame, stamp))
         if health is not None and health is not self._last_health:
@@ -370,7 +377,7 @@ class Ros2Bridge:
         authority = fc.authority if fc is not None else None
         status.authority = AUTHORITY_UNKNOWN if authority is None else int(authority)
         status.steering = authority is not None and authority.steers
-        self._status_publisher.publish(status)
+        self._publish_status(status)
 
 
 def _message_class(name: str) -> type:
