@@ -164,3 +164,33 @@ def test_a_scenario_the_obc_stalled_in_is_played_again_or_not_checked() -> None:
     unchecked = flight.report.lines[-1]
     assert unchecked.name == "another" and not unchecked.passed
     assert unchecked.measured.startswith("the OBC's commands came late (up to 80 ms apart)")
+
+
+def test_a_scenario_played_again_keeps_the_arming_it_did() -> None:
+    """A try that armed the FC, then stalled: its lines go, but the arming line stays — the
+    FC is still armed, and the next try (finding it so) does not say it again."""
+    from types import SimpleNamespace
+
+    from wftool.preflight.record import Record
+    from wftool.preflight.report import Report
+    from wftool.preflight.scenarios import ALONE, Scenario
+
+    stalls: Record[float] = Record()
+    report = Report()
+    flight = SimpleNamespace(report=report, obc=SimpleNamespace(stalls=stalls), armed=False)
+
+    def arms_then_stalls_once(flight: SimpleNamespace) -> None:
+        if not flight.armed:
+            report.lasting.append(report.check("the OBC (an arming request) arms (--arm)", True, "armed"))
+            flight.armed = True
+            report.check("first try", True, "yes")
+            stalls.add(0.07)
+        else:
+            report.check("second try", True, "yes")
+
+    run = Preflight(None, "", lambda settings: NoPilot())  # type: ignore[arg-type]
+    run.play(flight, Scenario("x", "armed", (ALONE,), arms_then_stalls_once))  # type: ignore[arg-type]
+    assert [line.name for line in report.lines] == [
+        "the OBC (an arming request) arms (--arm)",
+        "second try",
+    ]

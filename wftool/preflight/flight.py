@@ -237,7 +237,10 @@ class Flight:
         ready = self.watcher.wait(lambda s: s.can_arm, time.monotonic(), 15.0)
         if ready is None:
             flags = self.watcher.latest().status.arming_disabled
-            self.report.check("the FC can be armed", False, f"arming disabled ({flags!r})", "")
+            line = self.report.check(
+                "the FC can be armed", False, f"arming disabled ({flags!r})", ""
+            )
+            self.report.lasting.append(line)
             self.arming_failed = True
             return False
         self.armed = True
@@ -250,9 +253,10 @@ class Flight:
             self.obc.behave("fresh", self.command())
         armed = self.watcher.wait(lambda s: s.armed, moved, WAIT_S)
         who = "the OBC (an arming request)" if self.alone else "the pilot"
-        self.report.check(
+        line = self.report.check(
             f"{who} arms (--arm)", armed is not None, "armed" if armed else "not armed", "armed"
         )
+        self.report.lasting.append(line)  # a scenario played again finds the FC armed
         self.armed = armed is not None
         self.arming_failed = not self.armed
         return self.armed

@@ -43,6 +43,8 @@ class Report:
 
     subject: list[str] = field(default_factory=list)
     lines: list[Line] = field(default_factory=list)
+    lasting: list[Line] = field(default_factory=list)
+    """Lines of what the run did to the board (arming it): `take_back` keeps them."""
 
     def add(self, line: Line) -> Line:
         self.lines.append(line)
@@ -73,6 +75,13 @@ class Report:
         return self.check(
             name, ok, measured, f"≤ {limit_ms:g} ms", value=ms, unit="ms", clock=clock
         )
+
+    def take_back(self, since: int) -> None:
+        """Drop the lines from index `since` on (a try that is no evidence), but the
+        `lasting` ones: what they say the run did stays done, and is not said again."""
+        self.lines[since:] = [
+            line for line in self.lines[since:] if any(line is kept for kept in self.lasting)
+        ]
 
     def extend(self, other: Report) -> None:
         self.lines += other.lines

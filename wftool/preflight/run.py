@@ -191,7 +191,7 @@ class Preflight:
                 self._guard.check()
                 if not (stall := flight.obc.stalls.since(start)):
                     break
-                del report.lines[lines:]  # this program was late: no evidence of the FC's
+                report.take_back(lines)  # this program was late: no evidence of the FC's
                 stalls += stall
                 self.log(
                     f"{scenario.title}: the OBC's commands came {max(stall) * 1e3:.0f} ms apart "
