@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -338,8 +339,58 @@ def test_a_message_the_middleware_refuses_is_counted_and_the_stream_goes_on(brid
     packets = [p for i, data in enumerate(flight(3)) for p in monitor.feed(data, 0.001 * i)]
     frames = sum(len(p.frames) for p in packets)
     bridge.packets(packets)
+    bridge.flush()  # the publishing thread's
     assert frames >= 2 and len(tried) == frames
     assert bridge.unpublished == 1
+
+
+def test_the_loop_never_waits_for_the_middleware(bridge: Ros2Bridge):
+    """A publish that blocks (the middleware stalled) holds the publishing thread only: the
+    live loop's `packets` returns at once, read after read, so the loop goes on sending the
+    commands; once the middleware moves, every frame is published, in order."""
+    imu = next(p for p in bridge._node.publishers if p.topic_name.endswith("/fsp/imu"))
+    from rclpy.serialization import deserialize_message
+    from sensor_msgs.msg import Imu
+
+    publish, entered, release = imu.publish, threading.Event(), threading.Event()
+    published: list[int] = []
+
+    def stalled(message: bytes) -> None:  # the node publishes serialized messages
+        entered.set()
+        release.wait(10.0)
+        stamp = deserialize_message(message, Imu).header.stamp
+        published.append(stamp.sec * 1_000_000_000 + stamp.nanosec)
+        publish(message)
+
+    imu.publish = stalled  # under the node's own publishing
+    data = flight(20)
+    monitor = StreamMonitor("socket://sim:5762")
+    monitor.connected(0.0)
+    for i, read in enumerate(data, 1):
+        bridge.packets(monitor.feed(read, i * READ_S))
+    assert entered.wait(10.0) and published == []  # every read handed over, none published
+    release.set()
+    bridge.flush()
+    offset = bridge.encoder.wall_offset_ns
+    assert published == [offset + int(f.obc_time * 1e9) for f in decoded_frames(data, 0.0)]
+
+
+def test_an_error_publishing_reaches_the_loop(bridge: Ros2Bridge):
+    """What the publishing thread did not expect ends the run in the loop's thread, not in
+    silence: the next read's `packets` raises it."""
+    imu = next(p for p in bridge._node.publishers if p.topic_name.endswith("/fsp/imu"))
+
+    def broken(message: object) -> None:
+        raise RuntimeError("the middleware broke")
+
+    imu.publish = broken
+    monitor = StreamMonitor("socket://sim:5762")
+    monitor.connected(0.0)
+    first, second = (monitor.feed(data, 0.001 * i) for i, data in enumerate(flight(6)))
+    bridge.packets(first)
+    bridge.flush()
+    with pytest.raises(RuntimeError, match="the middleware broke"):
+        bridge.packets(second)
 
 
 def test_without_accept_commands_nothing_subscribes(bridge: Ros2Bridge):

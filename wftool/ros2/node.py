@@ -10,6 +10,7 @@ from __future__ import annotations
 import importlib
 import math
 import os
+import queue
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -21,7 +22,7 @@ from wftool.errors import Ros2Error, UsageError
 from wftool.extras import require
 from wftool.fsp import ArmingAction, StatePacket, UplinkFlag, UplinkStatus
 from wftool.recording import ros2msg as msgs
-from wftool.recording.events import Event, StreamHealth, new_uplink
+from wftool.recording.events import Event, StreamHealth, UplinkReport, new_uplink
 from wftool.recording.ros2msg import AUTHORITY_UNKNOWN, FrameEncoder, Throttle
 from wftool.ros2.commands import DEFAULT_MAX_AGE_NS, CommandCounts, CommandGate
 
@@ -36,6 +37,9 @@ FAST_DDS = "rmw_fastrtps_cpp"
 FAST_DDS_PROFILES = ("FASTDDS_DEFAULT_PROFILES_FILE", "FASTRTPS_DEFAULT_PROFILES_FILE")
 THIS_HOST_PROFILE = Path(__file__).with_name("this_host.xml")
 PUBLICATION_MODE = "RMW_FASTRTPS_PUBLICATION_MODE"
+PUBLISH_BACKLOG = 1000
+"""Reads the publishing thread may be behind by (~1 s of a 1 kHz stream) before the live loop
+waits for it."""
 SPIN_TIMEOUT_S = 0.1
 """How long the command thread waits for a command before it looks whether to stop."""
 ARMING_REQUESTS = {1: ArmingAction.ARM, 2: ArmingAction.DISARM}
@@ -205,6 +209,13 @@ class Ros2Bridge:
         self.fc_status: UplinkStatus | None = None
         """The FC's newest uplink status the node was given (who flies, its pulse range)."""
         self._arming: ArmingAction | None = None
+        # Publishing on a thread of its own: the live loop, which sends the commands, never
+        # waits for the middleware (a loaded host's backlog of frames superseded commands).
+        self._backlog: queue.Queue[_Published | None] = queue.Queue(PUBLISH_BACKLOG)
+        self._publish_error: BaseException | None = None
+        self._publisher = threading.Thread(
+            target=self._publishing, name="ros2-publish", daemon=True
+        )
         self.gate: CommandGate | None = None
         self._executor: Any = None
         self._spinner: threading.Thread | None = None
@@ -218,6 +229,7 @@ class Ros2Bridge:
             self._start_executor()
         self.topics = self._topic_names()
         """Every topic the node publishes or subscribes to, by full name."""
+        self._publisher.start()
 
     def _topic_names(self) -> list[str]:
         names = [p.topic_name for p in self._node.publishers]
@@ -256,11 +268,44 @@ class Ros2Bridge:
         """Events (reads, connects) are the recording's business; the node publishes frames."""
 
     def packets(self, packets: Sequence[StatePacket], health: StreamHealth | None = None) -> None:
-        """Publish every frame of `packets` (and `health`, and the FC's uplink status in it,
-        if new)."""
+        """Hand every frame of `packets` (and `health`, and the FC's uplink status in it, if
+        new) to the publishing thread; what the FC says of who flies and of its pulse range
+        holds at once, for the commands."""
+        if self._publish_error is not None:
+            raise self._publish_error
+        uplink = None
+        if health is not None and health is not self._last_health:
+            before, self._last_health = self._last_health, health
+            uplink = new_uplink(health, before)
+            if uplink is not None:
+                self.fc_status = uplink.status
+                if self.gate is not None:
+                    self.gate.pulse_range = uplink.status.pulse_range
+        else:
+            health = None
+        self._backlog.put(_Published(packets, health, uplink))
+
+    def flush(self) -> None:
+        """Return once everything handed to `packets` so far is published (or refused)."""
+        self._backlog.join()
+
+    def _publishing(self) -> None:
+        """The publishing thread: each read's frames, in order, until `close`; after an
+        error it only empties the backlog (`packets` raises it in the loop)."""
+        while (item := self._backlog.get()) is not None:
+            try:
+                if self._publish_error is None:
+                    self._publish(item)
+            except BaseException as exc:  # raised in the loop's thread, by `packets`
+                self._publish_error = exc
+            finally:
+                self._backlog.task_done()
+        self._backlog.task_done()
+
+    def _publish(self, item: _Published) -> None:
         encoder = self._encoder
         stamp = 0
-        for packet in packets:
+        for packet in item.packets:
             arrival = packet.arrival_time
             for frame in packet.frames:
                 stamp = encoder.frame_stamp_ns(frame, arrival)
@@ -268,15 +313,10 @@ class Ros2Bridge:
                     publish(encode(frame, stamp))
                 if self._battery_throttle.due(stamp):
                     self._battery(encoder.battery(frame, stamp))
-        if health is not None and health is not self._last_health:
-            before, self._last_health = self._last_health, health
-            self._health(encoder.health(health))
-            uplink = new_uplink(health, before)
-            if uplink is not None:
-                self._uplink_status(encoder.uplink_status(uplink))
-                self.fc_status = uplink.status
-                if self.gate is not None:
-                    self.gate.pulse_range = uplink.status.pulse_range
+        if item.health is not None:
+            self._health(encoder.health(item.health))
+        if item.uplink is not None:
+            self._uplink_status(encoder.uplink_status(item.uplink))
         if stamp and self._status_throttle.due(stamp):
             self.publish_command_status(stamp)
 
@@ -284,6 +324,9 @@ class Ros2Bridge:
         import rclpy
 
         self._stopping.set()
+        if self._publisher.is_alive():
+            self._backlog.put(None)
+            self._publisher.join()
         if self._spinner is not None:
             self._spinner.join()
             self._spinner = None
@@ -378,6 +421,16 @@ class Ros2Bridge:
         status.authority = AUTHORITY_UNKNOWN if authority is None else int(authority)
         status.steering = authority is not None and authority.steers
         self._publish_status(status)
+
+
+@dataclass(frozen=True)
+class _Published:
+    """One read's worth for the publishing thread: its packets, and the health snapshot and
+    uplink status that are new with it (None: none)."""
+
+    packets: Sequence[StatePacket]
+    health: StreamHealth | None
+    uplink: UplinkReport | None
 
 
 def _message_class(name: str) -> type:
