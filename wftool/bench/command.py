@@ -244,9 +244,16 @@ class _Run:
         deadline = time.monotonic() + LOCK_TIMEOUT_S
         while not (clock.state.locked and clock.two_way.active):
             if time.monotonic() > deadline:
+                rejected = ", ".join(
+                    f"{count} {why.value.replace('_', ' ')}"
+                    for why, count in clock.rejected.items()
+                    if count
+                )
                 raise ClockError(
                     f"the two-way clock did not lock within {LOCK_TIMEOUT_S:g} s of commands "
-                    "with time replies: is this the patched SITL?"
+                    f"with time replies ({clock.accepted} round trips used, rejected: "
+                    f"{rejected or 'none'}; the stream's clock started over "
+                    f"{clock.one_way.state.reinits} times): is this the patched SITL?"
                 )
             self.send(IMMEDIATE, 0.0, 0.0)
             until = time.monotonic() + self._rng.uniform(0.005, 0.015)
