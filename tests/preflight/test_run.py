@@ -181,7 +181,8 @@ def test_a_scenario_played_again_keeps_the_arming_it_did() -> None:
 
     def arms_then_stalls_once(flight: SimpleNamespace) -> None:
         if not flight.armed:
-            report.lasting.append(report.check("the OBC (an arming request) arms (--arm)", True, "armed"))
+            armed = report.check("the OBC (an arming request) arms (--arm)", True, "armed")
+            report.lasting.append(armed)
             flight.armed = True
             report.check("first try", True, "yes")
             stalls.add(0.07)
