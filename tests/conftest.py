@@ -38,6 +38,7 @@ from wftool.firmware.project import SUBMODULE_PATH, Project
 from wftool.firmware.targets import SITL, resolve_target
 from wftool.ros2 import typesupport
 from wftool.sitl.process import VirtualFC
+from wftool.sitl.session import CACHE_ENV
 
 pytest_plugins = ["tests.tiers", "pytester"]
 
@@ -178,6 +179,18 @@ def previous_sitl(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempP
     project = Project(root)
     with _build_date(project):
         return build(project, "sitl", BuildOptions(jobs=BUILD_JOBS)).firmware
+
+
+@pytest.fixture(scope="session", autouse=True)
+def sitl_eeproms(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    """The run's cache of configured virtual FCs' EEPROMs, shared by its workers and by the
+    wftool processes tests start (wftool.sitl.session): each configuration goes through
+    `configure fsp` once, and a virtual FC configured as one before starts in one boot."""
+    directory = shared.run_dir(tmp_path_factory) / "sitl-eeproms"
+    directory.mkdir(exist_ok=True)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv(CACHE_ENV, str(directory))
+        yield
 
 
 @pytest.fixture(scope="session")
