@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import re
 import socket
+import threading
+import time
 
 import pytest
 
@@ -68,3 +70,51 @@ def test_a_baud_rate_that_is_not_positive_is_refused(baudrate: int) -> None:
             open_port(url, baudrate=baudrate)
         with pytest.raises(UsageError, match="baud rate must be positive"):
             FspPort(url, baudrate).open()
+
+
+def test_a_write_that_went_out_whole_is_no_timeout_however_late_the_writer_ran(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """pyserial's socket write looked at the clock after each send: a thread that ran late (a
+    loaded host) had its sent write reported as a timeout. A clock that jumps 2 s at each
+    look (past the 1 s write timeout) stands in for that thread."""
+    import itertools
+
+    from serial.serialutil import Timeout
+
+    ticks = itertools.count(0.0, 2.0)
+    monkeypatch.setattr(Timeout, "TIME", lambda: next(ticks))
+    with socket.socket() as server:
+        server.bind(("127.0.0.1", 0))
+        server.listen()
+        link = open_port(f"socket://127.0.0.1:{server.getsockname()[1]}", timeout=0.2)
+        peer, _ = server.accept()
+        with peer, port_errors("the link"):
+            assert link.write(b"\x24M<\x00\x64\x64") == 6
+            assert peer.recv(64) == b"\x24M<\x00\x64\x64"
+        link.close()
+
+
+def test_a_peer_that_reads_slowly_gets_every_byte_and_one_that_stops_times_the_write_out() -> None:
+    payload = bytes(range(256)) * (1 << 14)  # 4 MiB: more than the socket buffers hold
+    with socket.socket() as server:
+        server.bind(("127.0.0.1", 0))
+        server.listen()
+        link = open_port(f"socket://127.0.0.1:{server.getsockname()[1]}", timeout=0.2)
+        peer, _ = server.accept()
+        with peer:
+            received = bytearray()
+
+            def read_slowly() -> None:
+                while len(received) < len(payload):
+                    received.extend(peer.recv(1 << 16))
+                    time.sleep(0.001)
+
+            reader = threading.Thread(target=read_slowly)
+            reader.start()
+            assert link.write(payload) == len(payload)
+            reader.join()
+            assert bytes(received) == payload
+            with pytest.raises(PortError, match="Write timeout"), port_errors("the link"):
+                link.write(payload)  # nobody reads now
+        link.close()

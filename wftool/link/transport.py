@@ -11,8 +11,10 @@ import array
 import contextlib
 import re
 import select
+import socket
 from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import Any, cast
 from urllib.parse import urlsplit
 
 import serial
@@ -61,11 +63,43 @@ def open_port(url: str, baudrate: int = 115200, timeout: float = 1.0) -> Port:
     if baudrate <= 0:
         raise UsageError(f"cannot open {url}: the baud rate must be positive, not {baudrate}")
     try:
+        if urlsplit(url).scheme == "socket":
+            port = SocketPort(
+                url, baudrate=baudrate, timeout=timeout, write_timeout=max(timeout, 1.0)
+            )
+            return cast(Port, port)  # pyserial's URL handlers are `Serial`s in all but the stubs
         return serial.serial_for_url(
             url, baudrate=baudrate, timeout=timeout, write_timeout=max(timeout, 1.0)
         )
     except (serial.SerialException, OSError, ValueError) as exc:
         raise PortError(f"cannot open {url}: {_reason(exc)}") from exc
+
+
+class SocketPort(protocol_socket.Serial):
+    """pyserial's socket:// port, whose write times out only when the peer takes nothing for
+    the write timeout. pyserial's own looks at the clock after each send and raised "Write
+    timeout" for a write that went out whole when the writing thread had run late (a loaded
+    host's scheduling, a busy interpreter), as if the peer had stalled."""
+
+    _socket: socket.socket
+
+    def write(self, data: Any) -> int:
+        if not self.is_open:
+            raise serial.PortNotOpenError()
+        left = memoryview(bytes(data))
+        length = len(left)
+        while left:
+            try:
+                left = left[self._socket.send(left) :]
+                continue
+            except (BlockingIOError, InterruptedError):
+                pass
+            except OSError as exc:
+                raise serial.SerialException(f"write failed: {exc}") from exc
+            _, ready, _ = select.select([], [self._socket], [], self.write_timeout)
+            if not ready:  # the peer took nothing for the whole write timeout
+                raise serial.SerialTimeoutException("Write timeout")
+        return length
 
 
 @contextlib.contextmanager
