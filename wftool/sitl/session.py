@@ -19,6 +19,7 @@ has engaged it with the AUX2 switch (`radio.EngagingPilot`).
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import math
 import os
@@ -304,7 +305,8 @@ class VirtualFcSession:
         root = os.environ.get(CACHE_ENV)
         if not root or self.configuration is not None:
             return None
-        key = hashlib.sha256(self.fc.binary.read_bytes())
+        binary = self.fc.binary.stat()
+        key = hashlib.sha256(_digest(self.fc.binary, binary.st_mtime_ns, binary.st_size))
         options = (
             self.fsp_uart, self._baud, self.rate_hz, self.time_reply, self.serial_update_rate_hz,
             self.pilot, self.cmd_timeout_ms, self.failsafe_procedure, self.arm_switch,
@@ -378,6 +380,12 @@ class VirtualFcSession:
 
     def __exit__(self, *exc_info: object) -> None:
         self.stop()
+
+
+@functools.lru_cache(maxsize=8)
+def _digest(binary: Path, mtime_ns: int, size: int) -> bytes:
+    """The SHA-256 of `binary` as it is (its time and size in the key: read once each)."""
+    return hashlib.sha256(binary.read_bytes()).digest()
 
 
 def _virtual_airframe(planner: Planner, arm_switch: int | None) -> Planner:
