@@ -150,7 +150,7 @@ def test_under_a_pilot_the_obc_steers_only_once_engaged_and_again_only_if_engage
             watch = lambda: pilot.observe(obc.status)  # noqa: E731
             engaged = obc.run_until(lambda o: o.roll == 1300, 5.0, each=watch)
             assert engaged and obc.status is not None, obc.status
-            assert pilot.engagements == 1 and "pilot: the OBC is engaged" in " ".join(said)
+            assert pilot.engagements == 1 and "pilot: the OBC is engaged" in " ".join(said), said
 
             obc.sending = False  # silence past the timeout: the pilot's sticks
             assert obc.run_until(lambda o: o.roll == 1500, 2.0)
@@ -161,8 +161,8 @@ def test_under_a_pilot_the_obc_steers_only_once_engaged_and_again_only_if_engage
             status = obc.status
             assert status is not None and status.exit is AuthorityExit.TIMEOUT
             assert not obc.run_until(lambda o: o.roll == 1300, 1.0)  # only the pilot engages
-            pilot.engage()
-            assert obc.run_until(lambda o: o.roll == 1300, 5.0)
+            assert obc.run_until(lambda o: o.roll == 1300, 5.0, each=watch)  # the switch on again
+            assert pilot.engagements == 2, said
             assert obc.status is not None and obc.status.authority is Authority.ENGAGED
         finally:
             obc.close()

@@ -14,7 +14,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from wftool.fsp import Authority, AuthorityExit, UplinkStatus
+from wftool.fsp import Authority, AuthorityExit, UplinkFlag, UplinkStatus
 from wftool.preflight.scenarios import RX_LOSS_MS
 from wftool.sitl.radio import (
     _RC_PACKET,
@@ -117,19 +117,55 @@ def test_the_transmitter_ends_when_its_holder_is_killed(rc_input: socket.socket)
         pytest.fail("the transmitter outlived the program holding it")
 
 
-def status(authority: Authority, arrival: float, exit: AuthorityExit = AuthorityExit.NONE):
-    """The FC's uplink status saying who flies, read at OBC time `arrival`."""
+def test_a_held_switch_goes_out_held_however_late_the_transmitter_runs(
+    rc_input: socket.socket,
+) -> None:
+    """A switch turned off for three frames and at once on again, while the host does not run
+    the transmitter: the off goes out in three frames, then the on; values set without a hold
+    in the meantime go out as the newest only (no burst of stale frames)."""
+    switch, roll = channel_index("aux2"), channel_index("roll")
+    with SimulatedRadio(rc_input.getsockname()[1]) as radio:
+        radio.set(aux2=HIGH)
+        while frame(rc_input)[1][switch] != HIGH:
+            pass
+        assert radio._process is not None
+        os.kill(radio._process.pid, signal.SIGSTOP)  # the host runs it late
+        try:
+            radio.set(roll=1100)
+            radio.set(roll=1200, aux2=LOW, hold_frames=3)
+            radio.set(aux2=HIGH)
+            radio.set(roll=1300)
+            radio.set(roll=1400)
+        finally:
+            os.kill(radio._process.pid, signal.SIGCONT)
+        sent: list[tuple[int, int]] = []
+        while not sent or sent[-1] != (1400, HIGH):
+            channels = frame(rc_input)[1]
+            sent.append((channels[roll], channels[switch]))
+    while sent[0] == (MID, HIGH):  # what went out before it was stopped
+        sent.pop(0)
+    assert sent == [(1200, LOW)] * 3 + [(1400, HIGH)]
+
+
+def status(
+    authority: Authority, arrival: float, exit: AuthorityExit = AuthorityExit.NONE,
+    override: bool = True,
+) -> UplinkStatus:  # fmt: skip
+    """The FC's uplink status saying who flies, read at OBC time `arrival`, and whether its
+    override switch is on."""
+    flags = UplinkFlag.LIVE | (UplinkFlag.OVERRIDE if override else 0)
     reported = UplinkStatus(
-        1, 0, 1, 0, 0, 0, 50, 0, 0, 0, authority, exit, 500, 0, 7, 0, 0, 0, 885, 2115
+        1, 0, 1, 0, 0, 0, 50, flags, 0, 0, authority, exit, 500, 0, 7, 0, 0, 0, 885, 2115
     )
     reported.arrival_time = arrival
     return reported
 
 
 def test_the_pilot_engages_when_the_fc_says_ready_and_says_so(rc_input: socket.socket) -> None:
-    """Off, then a few radio frames later on: once per READY the FC reports after the switch
-    could be seen; PROVING engages nothing; the pilot says when the OBC steers and when it
-    lost the sticks, and why."""
+    """Ready with the switch on (on before): off, and on once a status read after shows it
+    off; PROVING engages nothing; a status still showing it off, however late it is read, is
+    one from before the FC read it on; the pilot says when the OBC steers and when it lost
+    the sticks, and why."""
     said: list[str] = []
     clock = [100.0]
     with SimulatedRadio(rc_input.getsockname()[1]) as radio:
@@ -141,16 +177,17 @@ def test_the_pilot_engages_when_the_fc_says_ready_and_says_so(rc_input: socket.s
         assert radio.channels[switch] == HIGH and pilot.engagements == 0
         pilot.observe(status(Authority.READY, 100.0))
         assert radio.channels[switch] == LOW
-        clock[0] += 0.02  # not yet three frames
-        pilot.observe(status(Authority.READY, 100.0))
+        clock[0] += 0.05
+        pilot.observe(status(Authority.READY, 100.0, override=False))  # read before the off
+        pilot.observe(status(Authority.READY, clock[0]))  # the FC has not read it off yet
+        pilot.observe(None)
         assert radio.channels[switch] == LOW
-        clock[0] += 0.02
-        pilot.observe(status(Authority.READY, 100.0))
-        assert radio.channels[switch] == HIGH and pilot.engagements == 1
         clock[0] += 0.01
-        pilot.observe(status(Authority.READY, clock[0]))  # read before the FC could see it
+        pilot.observe(status(Authority.READY, clock[0], override=False))
         assert radio.channels[switch] == HIGH and pilot.engagements == 1
-        clock[0] += 0.1
+        clock[0] += 1.0  # a loaded host reads the FC's statuses late
+        pilot.observe(status(Authority.READY, clock[0], override=False))
+        assert radio.channels[switch] == HIGH and pilot.engagements == 1
         pilot.observe(status(Authority.ENGAGED, clock[0]))
         pilot.observe(status(Authority.PROVING, clock[0], AuthorityExit.TIMEOUT))
         assert radio.channels[switch] == HIGH and pilot.engagements == 1
@@ -160,3 +197,22 @@ def test_the_pilot_engages_when_the_fc_says_ready_and_says_so(rc_input: socket.s
         "pilot: the OBC is engaged: it steers the sticks",
         "pilot: the OBC lost the sticks (timeout): the pilot flies",
     ]
+
+
+def test_a_switch_the_fc_reads_off_is_turned_on_and_a_refused_turn_made_again(
+    rc_input: socket.socket,
+) -> None:
+    """Ready with the switch off as the FC reads it: on at once. Ready with it on after that
+    (the FC took the turn while not ready: exit not_ready, spec §15): off and on again."""
+    clock = [100.0]
+    with SimulatedRadio(rc_input.getsockname()[1]) as radio:
+        pilot = EngagingPilot(radio, 2, now=lambda: clock[0])
+        switch = channel_index("aux2")
+        pilot.observe(status(Authority.READY, 100.0, override=False))
+        assert radio.channels[switch] == HIGH and pilot.engagements == 1
+        clock[0] += 0.1
+        pilot.observe(status(Authority.READY, clock[0], AuthorityExit.NOT_READY))
+        assert radio.channels[switch] == LOW and pilot.engagements == 1
+        clock[0] += 0.1
+        pilot.observe(status(Authority.READY, clock[0], AuthorityExit.NOT_READY, override=False))
+        assert radio.channels[switch] == HIGH and pilot.engagements == 2

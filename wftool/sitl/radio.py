@@ -16,7 +16,6 @@ whenever the FC reports it ready.
 from __future__ import annotations
 
 import json
-import math
 import os
 import selectors
 import socket
@@ -25,9 +24,11 @@ import subprocess
 import sys
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Mapping
+from typing import Any
 
-from wftool.fsp import Authority, UplinkStatus
+from wftool.fsp import Authority, UplinkFlag, UplinkStatus
 from wftool.sitl.process import LOOPBACK
 
 RC_CHANNELS = 16
@@ -83,17 +84,23 @@ class SimulatedRadio:
             return tuple(self._channels)
 
     def set(
-        self, values: Mapping[str, int] | Mapping[int, int] | None = None, **named: int
+        self,
+        values: Mapping[str, int] | Mapping[int, int] | None = None,
+        hold_frames: int = 0,
+        **named: int,
     ) -> None:
         """Move sticks and switches by name (`channel_index`): `set(roll=1300, aux2=2000)`,
-        or by raw channel (0-based): `set({5: 2000})`. The next frame carries them."""
+        or by raw channel (0-based): `set({5: 2000})`. The next frame carries them, and at
+        least `hold_frames` frames do before a later `set`'s values go out: a switch turned
+        off and at once on again is on the air off, however late the host runs the
+        transmitter (which otherwise sends only the newest values)."""
         indices = {channel_index(name): value for name, value in named.items()}
         for key, value in (values or {}).items():
             indices[key if isinstance(key, int) else channel_index(key)] = value
         with self._lock:
             for index, value in indices.items():
                 self._channels[index] = value
-            self._tell()
+            self._tell(hold_frames)
 
     def transmitting(self, on: bool) -> None:
         """Switch the transmitter on or off (off: no frames, the FC's RX loss follows)."""
@@ -129,20 +136,23 @@ class SimulatedRadio:
     def __exit__(self, *exc_info: object) -> None:
         self.stop()
 
-    def _tell(self) -> None:
+    def _tell(self, hold_frames: int = 0) -> None:
         """Hand the state to the transmitter. Called with the lock held."""
         if self._process is None or self._process.stdin is None:
             return
-        state = json.dumps({"channels": self._channels, "on": self._on})
+        state = json.dumps({"channels": self._channels, "on": self._on, "frames": hold_frames})
         self._process.stdin.write(state + "\n")
         self._process.stdin.flush()
 
 
 def transmit(port: int, rate_hz: float) -> None:
     """The transmitter: a frame every 1/`rate_hz` s with the latest state read from stdin (a
-    JSON line {"channels", "on"}), until stdin ends (stopped, or its parent gone)."""
+    JSON line {"channels", "on", "frames"}), until stdin ends (stopped, or its parent gone);
+    a state to hold for `frames` frames goes out in that many before the states after it."""
     period = 1.0 / rate_hz
     channels, on = neutral_channels(), True
+    states: deque[dict[str, Any]] = deque()
+    held = 0
     pending = b""
     with (
         socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock,
@@ -156,10 +166,12 @@ def transmit(port: int, rate_hz: float) -> None:
                 if not chunk:
                     return
                 *lines, pending = (pending + chunk).split(b"\n")
-                if lines:
-                    state = json.loads(lines[-1])
-                    channels, on = state["channels"], state["on"]
+                states.extend(json.loads(line) for line in lines)
                 continue
+            while held == 0 and states:  # the newest state, or the first one to hold
+                state = states.popleft()
+                channels, on, held = state["channels"], state["on"], state["frames"]
+            held = max(0, held - 1)
             if on:
                 sock.sendto(_RC_PACKET.pack(time.monotonic() - start, *channels), (LOOPBACK, port))
             next_send += period
@@ -169,13 +181,17 @@ def transmit(port: int, rate_hz: float) -> None:
 
 class EngagingPilot:
     """A safety pilot who lets the OBC fly: whenever the FC's uplink status says the OBC is
-    ready (spec §15), turns the override switch (AUX`override_switch`, a `SimulatedRadio`'s)
-    off and, a few radio frames later, on — the engagement only a pilot can make — and says
-    so through `say`; says too when the OBC loses the sticks. `observe` takes each status as
-    it comes (the live loop's reads) and never blocks."""
+    ready (spec §15) with the override switch (AUX`override_switch`, a `SimulatedRadio`'s) off,
+    turns it on — the engagement only a pilot can make; ready with the switch on, turns it off
+    first, and on once the FC shows it off. Says so through `say`, and when the OBC loses the
+    sticks. `observe` takes each status as it comes (the live loop's reads) and never blocks.
+
+    The pilot goes by the switch as the FC shows it (the status's `override` flag), never by
+    how long ago it moved it: a loaded host reads statuses late and runs the transmitter late,
+    and a switch turned on before the FC read it off is no turn at all."""
 
     OFF_FRAMES = 3
-    """Radio frames the switch stays off: the FC's RX task must read it off before on."""
+    """Radio frames the switch is off at least: the FC's RX task must read it off before on."""
 
     def __init__(
         self,
@@ -189,41 +205,42 @@ class EngagingPilot:
         self._say = say
         self._now = now
         self._off_at: float | None = None
-        """When the switch went off for an engagement (None: not engaging)."""
-        self._on_at = -math.inf
-        """When it last went on: a status read before the FC could see that says nothing."""
+        """When the switch went off to be turned on (None: not waiting for the FC to see it)."""
         self._authority: Authority | None = None
         self.engagements = 0
 
     def observe(self, status: UplinkStatus | None) -> None:
         """The FC's newest uplink status (its `arrival_time` on the clock of `now`)."""
-        now = self._now()
-        if self._off_at is not None:
-            if now - self._off_at >= self.OFF_FRAMES * self.radio.frame_period_s:
-                self._switch_on(now)
-            return
         if status is None or status.authority is None:
             return
         if status.authority is not self._authority:
             self._tell(status)
             self._authority = status.authority
-        settled = 2 * self.OFF_FRAMES * self.radio.frame_period_s
-        seen = status.arrival_time is None or status.arrival_time > self._on_at + settled
-        if status.authority is Authority.READY and seen:
-            self.radio.set({self._switch: LOW})
-            self._off_at = now
+        shown_on = status.has(UplinkFlag.OVERRIDE)
+        if self._off_at is not None:
+            if not shown_on and (status.arrival_time is None or status.arrival_time > self._off_at):
+                self._switch_on()
+            return
+        if status.authority is not Authority.READY:
+            return
+        if shown_on:  # on before the OBC was ready, or a turn the FC refused (exit not_ready)
+            self.radio.set({self._switch: LOW}, hold_frames=self.OFF_FRAMES)
+            self._off_at = self._now()
             self._say(f"pilot: the OBC is ready; override switch {self._switch.upper()} off …")
+        elif self.radio.channels[channel_index(self._switch)] == LOW:
+            self._switch_on()
+        # else on, and the FC has not read it yet
 
     def engage(self) -> None:
-        """Turn the switch off and on now (blocking for the frames between): for a pilot
-        who sees the OBC is ready where wftool cannot (the user's OBC reads the stream)."""
-        self.radio.set({self._switch: LOW})
-        time.sleep(self.OFF_FRAMES * self.radio.frame_period_s)
-        self._switch_on(self._now())
+        """Turn the switch off and on now: for a pilot who sees the OBC is ready where wftool
+        cannot (the user's OBC reads the stream). The radio sends `OFF_FRAMES` frames of the
+        switch off between; that the FC read them only its status can tell (`observe`)."""
+        self.radio.set({self._switch: LOW}, hold_frames=self.OFF_FRAMES)
+        self._switch_on()
 
-    def _switch_on(self, now: float) -> None:
+    def _switch_on(self) -> None:
         self.radio.set({self._switch: HIGH})
-        self._off_at, self._on_at = None, now
+        self._off_at = None
         self.engagements += 1
         self._say(f"pilot: override switch {self._switch.upper()} on: engaging the OBC")
 
