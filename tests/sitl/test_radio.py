@@ -205,8 +205,9 @@ def test_a_switch_the_fc_reads_off_is_turned_on_and_a_refused_turn_made_again(
     """Ready with the switch off as the FC reads it: on at once. Ready with it on after that
     (the FC took the turn while not ready: exit not_ready, spec §15): off and on again."""
     clock = [100.0]
+    said: list[str] = []
     with SimulatedRadio(rc_input.getsockname()[1]) as radio:
-        pilot = EngagingPilot(radio, 2, now=lambda: clock[0])
+        pilot = EngagingPilot(radio, 2, say=said.append, now=lambda: clock[0])
         switch = channel_index("aux2")
         pilot.observe(status(Authority.READY, 100.0, override=False))
         assert radio.channels[switch] == HIGH and pilot.engagements == 1
@@ -216,3 +217,6 @@ def test_a_switch_the_fc_reads_off_is_turned_on_and_a_refused_turn_made_again(
         clock[0] += 0.1
         pilot.observe(status(Authority.READY, clock[0], AuthorityExit.NOT_READY, override=False))
         assert radio.channels[switch] == HIGH and pilot.engagements == 2
+    engaging = ["pilot: the OBC is ready; override switch AUX2 off …",
+                "pilot: override switch AUX2 on: engaging the OBC"]  # fmt: skip
+    assert said == engaging * 2

@@ -223,13 +223,14 @@ class EngagingPilot:
             return
         if status.authority is not Authority.READY:
             return
+        if not shown_on and self.radio.channels[channel_index(self._switch)] != LOW:
+            return  # on, and the FC has not read it yet
+        self._say(f"pilot: the OBC is ready; override switch {self._switch.upper()} off …")
         if shown_on:  # on before the OBC was ready, or a turn the FC refused (exit not_ready)
             self.radio.set({self._switch: LOW}, hold_frames=self.OFF_FRAMES)
             self._off_at = self._now()
-            self._say(f"pilot: the OBC is ready; override switch {self._switch.upper()} off …")
-        elif self.radio.channels[channel_index(self._switch)] == LOW:
+        else:
             self._switch_on()
-        # else on, and the FC has not read it yet
 
     def engage(self) -> None:
         """Turn the switch off and on now: for a pilot who sees the OBC is ready where wftool
