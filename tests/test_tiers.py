@@ -81,7 +81,13 @@ def test_tiers_come_from_the_fixture_closure(suite: pytest.Pytester) -> None:
     assert marks(items["test_clone"]) == {"firmware", "sitl", "slow"}
     assert selected(suite, "--quick") == ["test_plain"]
     assert selected(suite, "-m", "not slow") == ["test_plain"]
-    assert selected(suite, "-m", "sitl") == ["test_through_a_fixture", "test_clone"]
+    assert selected(suite, "-m", "sitl") == ["test_clone", "test_through_a_fixture"]
+
+
+def test_workers_take_the_clone_first_then_the_quick_tier(suite: pytest.Pytester) -> None:
+    """The builds first, the quick tier beside them, the virtual FCs and ROS 2 after (in the
+    order they were collected)."""
+    assert selected(suite) == ["test_clone", "test_plain", "test_through_a_fixture", "test_used"]
 
 
 def test_what_shares_a_fixture_or_the_clone_shares_a_worker(suite: pytest.Pytester) -> None:

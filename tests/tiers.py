@@ -97,6 +97,8 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     if config.getoption(QUICK_OPTION):
         config.hook.pytest_deselected(items=other)
         items[:] = quick
+    else:
+        items[:] = sorted(items, key=functools.partial(_start_order, quick=set(quick)))
 
 
 @pytest.hookimpl(trylast=True)  # after pytest-xdist has put the groups into the node ids
@@ -110,6 +112,17 @@ def pytest_collection_finish(session: pytest.Session) -> None:
                 f"pytest-xdist did not group {item.nodeid} (pytest {pytest.__version__}): "
                 "the tests that share a clone would run at once; see the test extra's pins"
             )
+
+
+def _start_order(item: pytest.Item, quick: set[pytest.Item]) -> int:
+    """Where a test goes in the order workers take them (`--no-loadscope-reorder`): the
+    builds and Betaflight's unit tests first, the longest work and the one that makes the
+    SITL; then the quick tier, which takes the other workers' CPU while those compile; then
+    the virtual FCs and ROS 2, whose timing a host busy compiling would only disturb."""
+    shared = item.get_closest_marker("xdist_group")
+    if shared is not None and shared.args[0] in SHARED_TREES.values():
+        return 0
+    return 1 if item in quick else 2
 
 
 def _group(item: pytest.Item, names: list[str]) -> str | None:

@@ -116,7 +116,9 @@ class TimedObc:
         assert isinstance(clock, TwoWayClockEstimator)
         deadline = time.monotonic() + 60.0
         while not (clock.state.locked and clock.two_way.active):
-            assert time.monotonic() < deadline, "the two-way clock never locked"
+            assert time.monotonic() < deadline, (
+                f"the two-way clock never locked: {clock.state}; {clock.two_way}"
+            )
             self.send(1500)
             self.pump(self._rng.uniform(0.005, 0.015))
 
