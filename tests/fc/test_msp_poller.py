@@ -65,22 +65,28 @@ def poll(fc: VirtualFC, duration_s: float, window: int, **options) -> tuple[obje
     return result, seen
 
 
+def assert_slots_of_their_own(result, seen: Seen, rate: PollRate) -> None:
+    """Every request of `rate`'s command in a slot of its own (k = its slot, distinct and
+    increasing), and every slot sent, skipped or missed."""
+    stats = result.commands[rate.cmd]
+    period = 1.0 / rate.rate_hz
+    slots = [
+        math.floor((t - seen.start) / period)
+        for kind, t, cmd in seen.events
+        if kind == "request" and cmd == rate.cmd
+    ]
+    assert len(slots) == stats.sent > 0
+    assert slots == sorted(set(slots)) and slots[-1] < stats.slots
+    assert stats.sent + stats.skipped + stats.missed == stats.slots
+
+
 @pytest.mark.parametrize("window", [4, 1])
 def test_schedule_window_and_stamps_on_sitl(virtual_fc: VirtualFC, window: int) -> None:
     result, seen = poll(virtual_fc, 3.0, window)
     assert not result.interrupted and result.corrupt_frames == 0 and result.stray_replies == 0
     for rate in PAPER_SCHEDULE:
         stats = result.commands[rate.cmd]
-        period = 1.0 / rate.rate_hz
-        # Every request in a slot of its own: k = its slot, distinct and increasing.
-        slots = [
-            math.floor((t - seen.start) / period)
-            for kind, t, cmd in seen.events
-            if kind == "request" and cmd == rate.cmd
-        ]
-        assert len(slots) == stats.sent > 0
-        assert slots == sorted(set(slots)) and slots[-1] < stats.slots
-        assert stats.sent + stats.skipped + stats.missed == stats.slots
+        assert_slots_of_their_own(result, seen, rate)
         assert stats.slots <= result.duration_s * rate.rate_hz + 1
         assert stats.replies == stats.sent - stats.lost and stats.lost == 0
         assert stats.error_replies == 0
@@ -106,6 +112,32 @@ def test_schedule_window_and_stamps_on_sitl(virtual_fc: VirtualFC, window: int) 
     assert sum(stats.sent for stats in result.commands.values()) < sum(
         stats.slots for stats in result.commands.values()
     )
+
+
+def test_a_slot_gone_by_while_the_poller_was_held_up_is_not_sent_late(
+    virtual_fc: VirtualFC, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The host holds the poller up between a slot's coming and its request going out (here
+    once, for 3 periods, as a loaded host did): the request of the slot that went by is not
+    sent, as late as that, into its successor's slot; it is skipped."""
+    rate = PollRate(Cmd.RC, 50.0)  # the FC answers well within a period: the window has room
+    expire, held = MspPoller._expire, []
+
+    def held_up(poller: MspPoller, stats: dict, t: float) -> None:
+        expire(poller, stats, t)
+        if not held and stats[rate.cmd].slots == 10:
+            held.append(t)
+            time.sleep(3 / rate.rate_hz)
+
+    monkeypatch.setattr(MspPoller, "_expire", held_up)
+    seen = Seen()
+    link = open_port(virtual_fc.url, timeout=0)
+    try:
+        result = MspPoller(link, (rate,), window=4).run(1.0, seen)
+    finally:
+        link.close()
+    assert held and result.commands[rate.cmd].skipped >= 1
+    assert_slots_of_their_own(result, seen, rate)
 
 
 def test_msp_v2_requests_are_answered(virtual_fc: VirtualFC) -> None:

@@ -289,10 +289,12 @@ class MspPoller:
             for cmd in sorted(waiting, key=waiting.__getitem__):
                 if len(in_flight) >= self.window:
                     break
+                sent_at = now()
+                if sent_at >= next_slot[commands.index(cmd)]:
+                    continue  # its slot went by while this program was held up: skipped
                 del waiting[cmd]
                 wire = self._wires[cmd]
                 self.link.write(wire)
-                sent_at = now()
                 in_flight.append((cmd, sent_at))
                 stats[cmd].sent += 1
                 if observer is not None:
