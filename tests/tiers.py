@@ -98,7 +98,7 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         config.hook.pytest_deselected(items=other)
         items[:] = quick
     else:
-        items[:] = sorted(items, key=functools.partial(_start_order, quick=set(quick)))
+        items[:] = sorted(items, key=_start_order)
 
 
 @pytest.hookimpl(trylast=True)  # after pytest-xdist has put the groups into the node ids
@@ -114,7 +114,7 @@ def pytest_collection_finish(session: pytest.Session) -> None:
             )
 
 
-def _start_order(item: pytest.Item, quick: set[pytest.Item]) -> int:
+def _start_order(item: pytest.Item) -> int:
     """Where a test goes in the order workers take them (`--no-loadscope-reorder`): the
     builds and Betaflight's unit tests first, the longest work and the one that makes the
     SITL; then the quick tier, which takes the other workers' CPU while those compile; then
@@ -122,7 +122,7 @@ def _start_order(item: pytest.Item, quick: set[pytest.Item]) -> int:
     shared = item.get_closest_marker("xdist_group")
     if shared is not None and shared.args[0] in SHARED_TREES.values():
         return 0
-    return 1 if item in quick else 2
+    return 2 if item.get_closest_marker("slow") else 1
 
 
 def _group(item: pytest.Item, names: list[str]) -> str | None:

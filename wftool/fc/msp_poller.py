@@ -269,6 +269,7 @@ class MspPoller:
         now, stats, in_flight = self._now, result.commands, self._in_flight
         periods = [1.0 / rate.rate_hz for rate in self.schedule]
         commands = [rate.cmd for rate in self.schedule]
+        index = {cmd: i for i, cmd in enumerate(commands)}
         next_slot = [start] * len(commands)
         waiting = self._waiting  # command -> the time of its slot waiting for room
         t = start
@@ -290,7 +291,7 @@ class MspPoller:
                 if len(in_flight) >= self.window:
                     break
                 sent_at = now()
-                if sent_at >= next_slot[commands.index(cmd)]:
+                if sent_at >= next_slot[index[cmd]]:
                     continue  # its slot went by while this program was held up: skipped
                 del waiting[cmd]
                 wire = self._wires[cmd]
