@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+import select
 import socket
 import threading
 import time
@@ -119,3 +120,71 @@ def test_a_peer_that_reads_slowly_gets_every_byte_and_one_that_stops_times_the_w
                 for _ in range(64):  # nobody reads now: the socket buffers (grown by the
                     link.write(payload)  # transfer above, up to several MiB) fill, then none
         link.close()
+
+
+class _OneClientServer:
+    """A server that holds one connection at a time and drops any other at once, as SITL's
+    UARTs do; it lets go of a connection `release_s` after the client's end of stream."""
+
+    def __init__(self, release_s: float) -> None:
+        self.release_s = release_s
+        self.listener = socket.create_server(("127.0.0.1", 0))
+        self.url = f"socket://127.0.0.1:{self.listener.getsockname()[1]}"
+        self.accepted = 0
+        self.dropped = 0
+        self._held: socket.socket | None = None
+        self._stop = False
+        self._thread = threading.Thread(target=self._serve, daemon=True)
+        self._thread.start()
+
+    def _serve(self) -> None:
+        while not self._stop:
+            watched = [self.listener] + ([self._held] if self._held else [])
+            ready, _, _ = select.select(watched, [], [], 0.01)
+            if self._held in ready and self._held is not None and not self._held.recv(64):
+                time.sleep(self.release_s)
+                self._held.close()
+                self._held = None
+            if self.listener in ready:
+                connection, _ = self.listener.accept()
+                if self._held is None:
+                    self._held, self.accepted = connection, self.accepted + 1
+                else:
+                    connection.close()
+                    self.dropped += 1
+
+    def close(self) -> None:
+        self._stop = True
+        self._thread.join()
+        self.listener.close()
+
+
+def test_close_waits_for_a_one_client_peer_to_let_go_so_a_reconnect_is_held() -> None:
+    server = _OneClientServer(release_s=0.05)
+    try:
+        for _ in range(5):
+            link = open_port(server.url, timeout=0.2)
+            started = time.monotonic()
+            link.close()
+            assert time.monotonic() - started >= 0.05  # it waited for the peer's close
+        time.sleep(0.1)  # the server's loop has seen every connect
+        assert (server.accepted, server.dropped) == (5, 0)
+    finally:
+        server.close()
+
+
+def test_close_of_a_link_whose_peer_keeps_it_open_returns_after_the_release_timeout() -> None:
+    from wftool.link.transport import RELEASE_TIMEOUT_S
+
+    with socket.create_server(("127.0.0.1", 0)) as server:
+        link = open_port(f"socket://127.0.0.1:{server.getsockname()[1]}", timeout=0.2)
+        peer, _ = server.accept()
+        with peer:
+            peer.sendall(b"unread by the link")
+            started = time.monotonic()
+            link.close()
+            waited = time.monotonic() - started
+            assert RELEASE_TIMEOUT_S <= waited < RELEASE_TIMEOUT_S + 1.0
+            assert peer.recv(64) == b""  # the link's end of stream reached the peer
+        assert not link.is_open
+        link.close()  # again: nothing to do

@@ -80,6 +80,22 @@ def test_stop_kills_a_process_that_ignores_sigterm(sitl_binary: Path, tmp_path: 
     assert not _alive(pid)
 
 
+def test_a_link_opened_right_after_one_closed_is_served(virtual_fc: VirtualFC) -> None:
+    """A UART holds one client and drops a connection made before it let go of the last
+    ("New connection on UART1, 1" in its log): closing a link waits for it to let go, so the
+    next one, opened at once, is the one it serves."""
+    offset = virtual_fc.log_path.stat().st_size
+
+    def log() -> bytes:
+        return virtual_fc.log_path.read_bytes()[offset:]
+
+    for _ in range(20):
+        with MspClient.open(virtual_fc.url) as msp:
+            assert msp.pid_cycle_us() > 0
+    assert wait_for(lambda: log().count(b"[CLS]UART1") == 20, timeout=5)
+    assert (log().count(b"[NEW]UART1"), log().count(b"New connection on UART1, 1")) == (20, 0)
+
+
 def test_wait_back_restarts_after_a_firmware_reset(virtual_fc: VirtualFC) -> None:
     with MspClient.open(virtual_fc.url) as msp:
         msp.reboot(RebootMode.FIRMWARE)

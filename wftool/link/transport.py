@@ -12,6 +12,7 @@ import contextlib
 import re
 import select
 import socket
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any, cast
@@ -75,31 +76,64 @@ def open_port(url: str, baudrate: int = 115200, timeout: float = 1.0) -> Port:
         raise PortError(f"cannot open {url}: {_reason(exc)}") from exc
 
 
-class SocketPort(protocol_socket.Serial):
-    """pyserial's socket:// port, whose write times out only when the peer takes nothing for
-    the write timeout. pyserial's own looks at the clock after each send and raised "Write
-    timeout" for a write that went out whole when the writing thread had run late (a loaded
-    host's scheduling, a busy interpreter), as if the peer had stalled."""
+RELEASE_TIMEOUT_S = 0.3
+"""How long closing a socket:// port waits for the peer to let go of the connection: what
+pyserial's own close sleeps every time, "in case of quick reconnects"."""
 
-    _socket: socket.socket
+
+class SocketPort(protocol_socket.Serial):
+    """pyserial's socket:// port, with two changes.
+
+    Its write times out only when the peer takes nothing for the write timeout. pyserial's
+    own looks at the clock after each send and raised "Write timeout" for a write that went
+    out whole when the writing thread had run late (a loaded host's scheduling, a busy
+    interpreter), as if the peer had stalled.
+
+    Its close returns once the peer has closed its end too, which a one-client server (SITL's
+    UARTs) does when it has let go of the connection: a reconnect is then accepted, not
+    dropped. pyserial's own sleeps 0.3 s at every close for that.
+    """
+
+    _socket: socket.socket | None
 
     def write(self, data: Any) -> int:
-        if not self.is_open:
+        sock = self._socket
+        if not self.is_open or sock is None:
             raise serial.PortNotOpenError()
         left = memoryview(bytes(data))
         length = len(left)
         while left:
             try:
-                left = left[self._socket.send(left) :]
+                left = left[sock.send(left) :]
                 continue
             except (BlockingIOError, InterruptedError):
                 pass
             except OSError as exc:
                 raise serial.SerialException(f"write failed: {exc}") from exc
-            _, ready, _ = select.select([], [self._socket], [], self.write_timeout)
+            _, ready, _ = select.select([], [sock], [], self.write_timeout)
             if not ready:  # the peer took nothing for the whole write timeout
                 raise serial.SerialTimeoutException("Write timeout")
         return length
+
+    def close(self) -> None:
+        sock, self._socket = self._socket, None
+        self.is_open = False
+        if sock is None:
+            return
+        with contextlib.suppress(OSError):
+            sock.shutdown(socket.SHUT_WR)
+            _await_end_of_stream(sock, RELEASE_TIMEOUT_S)
+        sock.close()
+
+
+def _await_end_of_stream(sock: socket.socket, timeout: float) -> None:
+    """Read (and drop) what `sock` receives until the peer closes its end, for at most
+    `timeout` seconds."""
+    deadline = time.monotonic() + timeout
+    while (left := deadline - time.monotonic()) > 0:
+        ready, _, _ = select.select([sock], [], [], left)
+        if ready and not sock.recv(_READ_SIZE):
+            return
 
 
 @contextlib.contextmanager
