@@ -136,6 +136,37 @@ def test_flags_select_their_own_objects(project, sitl):
     assert build(project, "sitl", BuildOptions(jobs=JOBS)).up_to_date
 
 
+def test_a_build_carries_the_date_it_was_built_for(project, sitl, monkeypatch):
+    """ccache serves the units by direct mode, the STM32 HAL's __TIME__ notwithstanding
+    (builder.CCACHE_DIRECT); version.c expands __DATE__ and __TIME__ and is compiled for each
+    date (SOURCE_DATE_EPOCH), never served for it by a build of another date."""
+    version_c = project.tree / "src" / "main" / "build" / "version.c"
+    was = version_c.stat()
+    committed = int(run_git(project.root, "log", "-1", "--format=%ct"))
+
+    def build_dated(epoch: int) -> bytes:
+        monkeypatch.setenv("SOURCE_DATE_EPOCH", str(epoch))
+        os.utime(version_c)  # newer than its object: make compiles it again, through ccache
+        dated = build(project, "sitl", BuildOptions(jobs=JOBS))
+        assert dated.compiled == 1
+        return dated.firmware.read_bytes()
+
+    dated = None
+    try:
+        for dated in (committed + 40 * 86400 + 3661, committed):  # then the run's date again
+            when = time.gmtime(dated)
+            stamps = {
+                f"{time.strftime('%b', when)} {when.tm_mday:2d} {when.tm_year}",  # __DATE__
+                time.strftime("%H:%M:%S", when),  # __TIME__
+            }
+            image = build_dated(dated)
+            assert {stamp for stamp in stamps if stamp.encode() in image} == stamps
+    finally:  # as it was: the run's build date (tests/conftest.py), version.c's time
+        if dated != committed:
+            build_dated(committed)
+        os.utime(version_c, ns=(was.st_atime_ns, was.st_mtime_ns))
+
+
 def test_speedybeef7v3_is_flashable_and_traceable(project, board):
     data = board.manifest.to_json()
     assert (data["target"], data["board"], data["mcu"]) == ("speedybeef7v3", BOARD, "STM32F722")

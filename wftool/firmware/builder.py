@@ -193,7 +193,7 @@ def prepare(
     ).hexdigest()[:12]
     object_dir = project.build_dir / ".obj" / f"{target.name}-{key}"
     variables |= {"OBJECT_DIR": str(object_dir), "BIN_DIR": str(object_dir)}
-    env = {"CCACHE_BASEDIR": str(project.root), "CCACHE_NOHASHDIR": "true"}
+    env = {"CCACHE_BASEDIR": str(project.root), "CCACHE_NOHASHDIR": "true", **CCACHE_DIRECT}
     if not options.ccache:
         env["CCACHE_DISABLE"] = "1"
     command = make.MakeCommand(
@@ -206,6 +206,12 @@ def prepare(
     make.write_hook(command.hook)
     return Prepared(project, target, compiler, command, object_dir, options.flags, warnings)
 
+
+CCACHE_DIRECT = {"CCACHE_SLOPPINESS": "time_macros"}
+"""ccache hashes a unit's sources (direct mode) instead of preprocessing it, also where the
+token __TIME__ appears: the STM32 HAL headers name macro parameters so, and a board build then
+preprocessed every unit for a hit (~60 s of CPU, not ~25). version.c, which expands __DATE__
+and __TIME__, is compiled without it (make.HOOK_MAKEFILE)."""
 
 OFFLINE = {"AUTOHYDRATE_SUBMODULES": "", "AUTOHYDRATE_STAMPS": ""}
 """Betaflight 2026.6 would clone the submodules it hydrates (src/config, libcanard) from

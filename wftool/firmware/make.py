@@ -31,6 +31,10 @@ $(info wftool-var objects=$(words $(TARGET_OBJS)))
 
 .PHONY: wftool-firmware
 wftool-firmware: $(if $(filter exe,$(DEFAULT_OUTPUT)),$(TARGET_EXE),$(TARGET_HEX) $(TARGET_BIN))
+
+# wftool lets ccache serve units by direct mode despite __TIME__ (the STM32 HAL names macro
+# parameters so); version.c expands __DATE__ and __TIME__, and must be compiled for its date.
+$(TARGET_OBJ_DIR)/build/version.o: export CCACHE_SLOPPINESS :=
 """
 GOAL = "wftool-firmware"
 
