@@ -14,13 +14,15 @@ from collections.abc import Iterator
 
 import pytest
 
+from tests.waits import wait_for
 from wftool.fsp import Authority, AuthorityExit, UplinkFlag, UplinkStatus
-from wftool.preflight.scenarios import RX_LOSS_MS
 from wftool.sitl.radio import (
     _RC_PACKET,
     HIGH,
     LOW,
     MID,
+    RX_LOSS_MS,
+    STALL_S,
     EngagingPilot,
     SimulatedRadio,
     channel_index,
@@ -90,6 +92,29 @@ def test_the_radio_keeps_sending_while_its_holder_stalls(rc_input: socket.socket
     # cores), never the holder's stall.
     gaps = [b - a for a, b in itertools.pairwise(times)]
     assert max(gaps) < RX_LOSS_MS / 1e3, (max(gaps), stalled)
+
+
+def test_a_transmitter_its_host_stalled_says_so_and_one_taken_away_does_not(
+    rc_input: socket.socket,
+) -> None:
+    """A gap between frames long enough for the FC's RX loss, which nobody meant (the host
+    stopped the transmitter), is reported with its length; the radio switched off is not."""
+    with SimulatedRadio(rc_input.getsockname()[1]) as radio:
+        assert radio._process is not None
+        start = time.monotonic()
+        frame(rc_input)
+        radio.transmitting(False)
+        time.sleep(2 * STALL_S)
+        radio.transmitting(True)
+        frame(rc_input)
+        os.kill(radio._process.pid, signal.SIGSTOP)  # the host does not run it
+        time.sleep(2 * STALL_S)
+        os.kill(radio._process.pid, signal.SIGCONT)
+        frame(rc_input)
+        assert wait_for(lambda: radio.stalls_since(start), timeout=5.0)
+        stalls = radio.stalls_since(start)
+        assert len(stalls) == 1 and 2 * STALL_S <= stalls[0] < 2 * STALL_S + 1.0, stalls
+        assert radio.stalls_since(time.monotonic()) == []
 
 
 def test_the_transmitter_ends_when_its_holder_is_killed(rc_input: socket.socket) -> None:

@@ -28,6 +28,11 @@ class Pilot(Protocol):
     def transmitter(self, on: bool) -> bool:
         """Switch the transmitter on or off; False if this pilot cannot."""
 
+    def stalls_since(self, since: float) -> list[float]:
+        """Gaps (s) between the radio's frames since host time `since` long enough for the FC
+        to count the radio lost though nobody took it away (a simulated radio's host
+        stalled); none for a real radio, which wftool does not run."""
+
 
 class HumanPilot:
     """A person at the transmitter, asked through `ask` (which returns when they are done)."""
@@ -49,6 +54,9 @@ class HumanPilot:
         self._ask("transmitter ON" if on else "transmitter OFF (props off!)")
         return True
 
+    def stalls_since(self, since: float) -> list[float]:
+        return []
+
 
 class NoPilot:
     """The OBC alone: nobody holds a radio."""
@@ -60,6 +68,9 @@ class NoPilot:
 
     def transmitter(self, on: bool) -> bool:
         return False
+
+    def stalls_since(self, since: float) -> list[float]:
+        return []
 
 
 class RadioPilot:
@@ -90,6 +101,9 @@ class RadioPilot:
     def transmitter(self, on: bool) -> bool:
         self.radio.transmitting(on)
         return True
+
+    def stalls_since(self, since: float) -> list[float]:
+        return self.radio.stalls_since(since)
 
 
 def switch_position(switch: AuxRange, on: bool) -> int:

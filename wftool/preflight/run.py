@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import contextlib
 import threading
+import time
 from collections.abc import Callable, Iterator, Sequence
 
 from wftool.errors import UsageError, WftoolError
@@ -24,12 +25,12 @@ from wftool.preflight.watcher import FcWatcher, Snapshot
 from wftool.progress import Log, quiet
 
 FIRST_STATUS_S = 1.0
+"""How long the FC may take to answer a first packet with an uplink status (E3)."""
 TRIES = 5
 """A scenario during which wftool's own OBC's commands came late (its host or the link
-stalled) is played again, up to this often."""
-STALLED = "the OBC's commands came late"
+stalled), or the simulated radio's frames did, is played again, up to this often."""
+STALLED = "wftool's OBC or radio came late"
 """How the line of a scenario not checked for that begins."""
-"""How long the FC may take to answer a first packet with an uplink status (E3)."""
 
 
 class ArmedError(UsageError):
@@ -187,15 +188,23 @@ class Preflight:
             for _ in range(TRIES):
                 self.log(f"scenario: {scenario.title}{count}")
                 lines, start = len(report.lines), flight.obc.stalls.end
+                started = time.monotonic()
                 scenario.run(flight)
                 self._guard.check()
-                if not (stall := flight.obc.stalls.since(start)):
+                stall = flight.obc.stalls.since(start)
+                radio = flight.pilot.stalls_since(started)
+                if not stall and not radio:
                     break
                 report.take_back(lines)  # this program was late: no evidence of the FC's
-                stalls += stall
+                stalls += stall + radio
+                late = []
+                if stall:
+                    late.append(f"the OBC's commands came {max(stall) * 1e3:.0f} ms apart")
+                if radio:
+                    late.append(f"the radio's frames came {max(radio) * 1e3:.0f} ms apart")
                 self.log(
-                    f"{scenario.title}: the OBC's commands came {max(stall) * 1e3:.0f} ms apart "
-                    "(its host or the link stalled): played again"
+                    f"{scenario.title}: {' and '.join(late)} (wftool's host or the link "
+                    "stalled): played again"
                 )
             else:
                 report.not_checked(

@@ -29,13 +29,12 @@ from wftool.preflight.flight import (
 )
 from wftool.preflight.obc import README_COMMAND, Sent
 from wftool.preflight.watcher import STICKS
+from wftool.sitl.radio import RX_LOSS_MS
 
 PILOT, ALONE = "safety pilot", "the OBC alone"
 BOTH = (PILOT, ALONE)
 FAILSAFE_LANDING = 2
 """Betaflight's failsafe phases from here on are stage 2 (`FAILSAFE_PHASES`)."""
-RX_LOSS_MS = 150
-"""Betaflight's RX loss delay for a receiver that stops (RXLOSS_TRIGGER_INTERVAL)."""
 STEP_BACK_S = -5.0
 """The OBC clock's step back."""
 STAYS_S = 1.5

@@ -26,7 +26,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Mapping
-from typing import Any
+from typing import IO, Any
 
 from wftool.fsp import Authority, UplinkFlag, UplinkStatus
 from wftool.sitl.process import LOOPBACK
@@ -36,6 +36,12 @@ _RC_PACKET = struct.Struct(f"<d{RC_CHANNELS}H")
 STDIN = 0
 DEFAULT_RATE_HZ = 100.0
 """Frames per second: an SBUS or CRSF radio's order of magnitude."""
+
+RX_LOSS_MS = 150
+"""Betaflight's RX loss delay for a receiver that stops (RXLOSS_TRIGGER_INTERVAL)."""
+STALL_S = 0.8 * RX_LOSS_MS / 1000
+"""A gap this long between two frames the transmitter meant to send in a row (its host
+stalled it): the FC may have counted the radio lost. The transmitter reports each one."""
 
 CHANNEL_NAMES = ("roll", "pitch", "throttle", "yaw")
 """Raw channels 1-4 under Betaflight's default map AETR1234; then AUX1, AUX2, ..."""
@@ -73,6 +79,8 @@ class SimulatedRadio:
         self._channels = neutral_channels()
         self._on = True
         self._process: subprocess.Popen[str] | None = None
+        self._stalls: list[tuple[float, float]] = []
+        """(when it ended, how long) of each stall the transmitter reported (`STALL_S`)."""
 
     @property
     def frame_period_s(self) -> float:
@@ -102,6 +110,13 @@ class SimulatedRadio:
                 self._channels[index] = value
             self._tell(hold_frames)
 
+    def stalls_since(self, since: float) -> list[float]:
+        """The gaps (s) between frames, each `STALL_S` or longer, that ended at or after
+        `since` (the host's monotonic clock): the transmitter's host stalled it, and the FC
+        may have counted the radio lost. Reported once the next frame went out."""
+        with self._lock:
+            return [gap for ended, gap in self._stalls if ended >= since]
+
     def transmitting(self, on: bool) -> None:
         """Switch the transmitter on or off (off: no frames, the FC's RX loss follows)."""
         with self._lock:
@@ -112,10 +127,23 @@ class SimulatedRadio:
         command = [sys.executable, "-m", "wftool.sitl.radio", str(self._port), str(self._rate_hz)]
         with self._lock:
             self._process = subprocess.Popen(  # its own session: a Ctrl-C is for the program
-                command, stdin=subprocess.PIPE, text=True, start_new_session=True
+                command,
+                stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE,
+                text=True,
+                start_new_session=True,
             )
             self._tell()
+            reports = self._process.stdout
+        threading.Thread(target=self._read_stalls, args=(reports,), daemon=True).start()
         return self
+
+    def _read_stalls(self, reports: IO[str] | None) -> None:
+        """Take the transmitter's stall reports (a JSON line each) until it ends."""
+        for line in reports or ():
+            stall = json.loads(line)
+            with self._lock:
+                self._stalls.append((stall["ended"], stall["gap"]))
 
     def stop(self) -> None:
         with self._lock:
@@ -154,6 +182,7 @@ def transmit(port: int, rate_hz: float) -> None:
     states: deque[dict[str, Any]] = deque()
     held = 0
     pending = b""
+    last_sent: float | None = None
     with (
         socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock,
         selectors.DefaultSelector() as sel,
@@ -173,7 +202,11 @@ def transmit(port: int, rate_hz: float) -> None:
                 channels, on, held = state["channels"], state["on"], state["frames"]
             held = max(0, held - 1)
             if on:
-                sock.sendto(_RC_PACKET.pack(time.monotonic() - start, *channels), (LOOPBACK, port))
+                sent = time.monotonic()
+                sock.sendto(_RC_PACKET.pack(sent - start, *channels), (LOOPBACK, port))
+                if last_sent is not None and sent - last_sent >= STALL_S:
+                    print(json.dumps({"ended": sent, "gap": sent - last_sent}), flush=True)
+            last_sent = sent if on else None  # off is no stall: the radio taken away
             next_send += period
             if next_send < time.monotonic() - period:  # the host stalled: no burst of stale frames
                 next_send = time.monotonic()
