@@ -179,7 +179,12 @@ def test_timed_commands_act_at_their_fc_time_within_one_pid_period(alone, obc) -
     obc.wait_reports(sent)
     obc.pump(0.05)
     reports = [obc.reports[p.seq] for p in sent if p.seq in obc.reports]
-    assert len(reports) == len(sent), "every timed command is reported on"
+    newest = max(reports, key=lambda r: r.event_time_us or 0, default=None)
+    assert len(reports) == len(sent), (
+        "every timed command is reported on; not: "
+        f"{[p.seq for p in sent if p.seq not in obc.reports]}; the FC's books at the newest "
+        f"report: {newest and newest.counts}; the stream: {obc.decoder.stats}"
+    )
     on_time = [r for r in reports if r.outcome == CommandOutcome.ON_TIME]
     late = [r for r in reports if r.outcome == CommandOutcome.LATE]
     assert len(on_time) >= 0.9 * len(sent), [CommandOutcome(r.outcome).name for r in reports]
