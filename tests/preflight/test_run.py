@@ -110,6 +110,26 @@ def test_armed_during_the_run_without_arm_stops_the_obc(sitl_binary: Path, tmp_p
         assert watch is None or watch.accepted <= accepted + 1
 
 
+def test_the_scenarios_wait_for_the_fc_to_receive_the_pilots_radio(
+    sitl_binary: Path, tmp_path: Path
+) -> None:
+    """A virtual FC restarted after its settings were read is in RX loss until its receiver
+    has had frames for a while: the scenarios start once it receives the pilot's radio, and a
+    radio it never receives is a failed line."""
+    with on_virtual_fc(sitl_binary, control=SafetyPilot(), port_base=None, workdir=tmp_path) as run:
+        run.read()
+        with run.flying() as flight:
+            assert not flight.watcher.latest().rx_loss
+        radio = run.pilot.args[0]  # type: ignore[attr-defined]  # the session's simulated radio
+        radio.transmitting(False)
+        run.read()  # the FC restarts without it
+        with run.flying():
+            pass
+    lines = {line.name: line for line in run.report.lines}
+    line = lines["the FC receives the pilot's radio"]
+    assert (line.passed, line.measured) == (False, "RXLOSS")
+
+
 def test_a_lost_link_mid_run_is_one_error_naming_its_port(
     sitl_binary: Path, tmp_path: Path
 ) -> None:

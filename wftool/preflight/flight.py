@@ -123,9 +123,23 @@ class Flight:
     # -- the OBC in and out of control --------------------------------------------------------
 
     def start(self) -> None:
-        """The pilot holds the override switch off and the sticks still; read their values."""
+        """The pilot holds the override switch off and the sticks still, and the FC receives
+        the pilot's radio (an FC that has just started, as it does after its settings were
+        read, is in RX loss until its receiver has had frames for a while); read the sticks'
+        values. A radio the FC does not receive is a failed line."""
         if not self.alone:
             self.switch(False)
+            received = self.watcher.wait(
+                lambda s: not s.rx_loss and not s.failsafe, time.monotonic(), LINK_UP_S
+            )
+            if received is None:
+                latest = self.watcher.latest()
+                self.report.check(
+                    "the FC receives the pilot's radio",
+                    False,
+                    "RXLOSS" if latest.rx_loss else "failsafe",
+                    "no RXLOSS or failsafe",
+                )
         self.pilot_rc = self.watcher.latest().rc
 
     def silence(self) -> None:
