@@ -10,6 +10,8 @@ identity; `test_wftool_flash_on_a_virtual_speedybeef7v3` flashes the real board 
 from __future__ import annotations
 
 import os
+import signal
+import threading
 from dataclasses import replace
 from pathlib import Path
 
@@ -535,3 +537,29 @@ def test_wftool_flash_on_a_virtual_speedybeef7v3(
         )  # fmt: skip
         assert "p_pitch" in out  # --restore replayed the backup: its report
         assert fc_settings(board.fc, "p_pitch") == {"p_pitch": "55"}
+
+
+def test_the_virtual_boards_port_lets_go_as_the_fcs_does(
+    sitl_binary: Path, bootloader: EmulatedBootloader, tmp_path: Path
+) -> None:
+    """Scaffolding check: through the identity bridge, a link's close waits for the FC to let
+    go of the connection, as on the FC's own port (a close that did not was followed by a
+    connection the FC dropped: "New connection on UART1, 1"). The FC stopped, the close
+    waits; the FC running again, it returns."""
+    fc = VirtualFC(sitl_binary, tmp_path / "sitl", port_base=None)
+    with VirtualBoard(fc, bootloader, identity=SPEEDYBEEF7V3) as board:
+        msp = MspClient.open(board.url)
+        assert msp.board_info().board_identifier == SPEEDYBEEF7V3.identifier
+        assert fc._process is not None
+        os.kill(fc._process.pid, signal.SIGSTOP)
+        try:
+            closing = threading.Thread(target=msp.close)
+            closing.start()
+            closing.join(0.05)  # well within the close's release timeout (0.3 s)
+            assert closing.is_alive(), "the close returned while the FC held the connection"
+        finally:
+            os.kill(fc._process.pid, signal.SIGCONT)
+        closing.join()
+        for _ in range(5):  # and links opened at once after a close are served
+            with MspClient.open(board.url) as msp:
+                assert msp.board_info().board_identifier == SPEEDYBEEF7V3.identifier

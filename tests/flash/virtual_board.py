@@ -203,22 +203,36 @@ class IdentityBridge:
                 client.close()  # the FC is not there: as a port that is gone
                 continue
             upstream.settimeout(None)
+            pumps = threading.Barrier(2, action=lambda c=client, u=upstream: _close(c, u))
             for source, sink, rewrite in ((client, upstream, False), (upstream, client, True)):
                 thread = threading.Thread(
-                    target=self._pump, args=(source, sink, rewrite), daemon=True
+                    target=self._pump, args=(source, sink, rewrite, pumps), daemon=True
                 )
                 thread.start()
 
-    def _pump(self, source: socket.socket, sink: socket.socket, rewrite: bool) -> None:
+    def _pump(
+        self, source: socket.socket, sink: socket.socket, rewrite: bool, pumps: threading.Barrier
+    ) -> None:
+        """One direction, until its source ends; then its end goes on to the sink (a half
+        close). The connection closes once both directions have ended: a client that closes
+        hears the end of the FC's side only once the FC has let go of the connection, as on
+        the FC's own port (wftool waits for that before it connects again)."""
         rewriter = _Rewriter(self.identity)
         with contextlib.suppress(OSError):
             while chunk := source.recv(4096):
                 sink.sendall(rewriter.feed(chunk) if rewrite else chunk)
             sink.sendall(rewriter.flush() if rewrite else b"")
-        for end in (source, sink):
-            with contextlib.suppress(OSError):
-                end.shutdown(socket.SHUT_RDWR)
-            end.close()
+        with contextlib.suppress(OSError):
+            sink.shutdown(socket.SHUT_WR)
+        with contextlib.suppress(threading.BrokenBarrierError):
+            pumps.wait()
+
+
+def _close(*ends: socket.socket) -> None:
+    for end in ends:
+        with contextlib.suppress(OSError):
+            end.shutdown(socket.SHUT_RDWR)
+        end.close()
 
 
 class _Rewriter:
