@@ -203,7 +203,7 @@ class IdentityBridge:
                 client.close()  # the FC is not there: as a port that is gone
                 continue
             upstream.settimeout(None)
-            pumps = threading.Barrier(2, action=lambda c=client, u=upstream: _close(c, u))
+            pumps = threading.Barrier(2, action=lambda c=client, u=upstream: (c.close(), u.close()))
             for source, sink, rewrite in ((client, upstream, False), (upstream, client, True)):
                 thread = threading.Thread(
                     target=self._pump, args=(source, sink, rewrite, pumps), daemon=True
@@ -226,13 +226,6 @@ class IdentityBridge:
             sink.shutdown(socket.SHUT_WR)
         with contextlib.suppress(threading.BrokenBarrierError):
             pumps.wait()
-
-
-def _close(*ends: socket.socket) -> None:
-    for end in ends:
-        with contextlib.suppress(OSError):
-            end.shutdown(socket.SHUT_RDWR)
-        end.close()
 
 
 class _Rewriter:
