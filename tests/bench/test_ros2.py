@@ -23,3 +23,8 @@ def test_both_readers_run_and_the_subscriber_gets_what_was_published(sitl_binary
     assert result.hop is not None and result.hop.p50_us > 0
     # From the stamp, the subscriber cannot have a frame before the node read it.
     assert result.node.latency.p50_us > result.hop.p50_us
+    # Commands meanwhile: each accounted for; how many were sent is the figure, not judged.
+    commands = result.commands
+    assert commands.received > 0 and commands.sent > 0, commands
+    assert commands.sent + commands.superseded + commands.stale == commands.received, commands
+    assert commands.links >= 1 and commands.foreign == commands.not_newer == 0, commands

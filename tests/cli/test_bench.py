@@ -63,3 +63,4 @@ def test_bench_ros2_prints_both_readers_the_hop_and_the_subscriber(
     assert len(rows) == 2, out
     assert "the node's hop (its read → the subscriber's callback), per frame: P50" in out
     assert " published while it measured (0 lost)" in out
+    assert "commands at 50 Hz from the subscriber's process meanwhile: " in out

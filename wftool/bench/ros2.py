@@ -2,7 +2,7 @@
 (docs/bench.md).
 
     result = run_ros2_bench(sitl_binary, seconds=20.0)
-    result.node.cpu_percent_per_khz, result.node.latency, result.hop
+    result.node.cpu_percent_per_khz, result.node.latency, result.hop, result.commands
 """
 
 from __future__ import annotations
@@ -21,11 +21,17 @@ from typing import Any
 from wftool.fsp import FspReader, StatePacket
 from wftool.fsp.schedule import DEFAULT_RATE_HZ
 from wftool.recording.events import Event, StreamHealth
+from wftool.ros2.commands import CommandCounts
 from wftool.sitl.session import Motion, VirtualFcSession
 from wftool.stats import Distribution
 
 NAMESPACE = "/wftool_bench"
 IMU_TOPIC = f"{NAMESPACE}/fsp/imu"
+COMMAND_TOPIC = f"{NAMESPACE}/fsp/command"
+COMMAND_RATE_HZ = 50
+"""How often the subscriber's process commands the node while it measures (the rate of
+tests/ros2/test_sitl.py's commander)."""
+COMMAND_RC = (1500, 1500, 1500, 1000, 1000, 1000)
 SETTLE_S = 3.0
 """Time the readers run before measuring: the clock estimator's first lock, discovery."""
 READ_TIMEOUT_S = 0.05
@@ -69,6 +75,15 @@ class Ros2Bench:
     hop: Distribution | None
     """Per frame: the subscriber's callback minus the node's read, µs."""
     subscriber_cpu_percent: float
+    commands: CommandCounts
+    """What became of the commands the subscriber's process published at `COMMAND_RATE_HZ`
+    while it measured: on a loaded host the node's loop, which sends them between its reads,
+    may come to one only after a newer one (superseded) or after the age limit (stale)."""
+
+    @property
+    def commands_sent_fraction(self) -> float:
+        received = self.commands.received
+        return self.commands.sent / received if received else math.nan
 
 
 def run_ros2_bench(
@@ -169,10 +184,10 @@ def _run_node(url: str, seconds: float, conn: Connection) -> None:
     from wftool.ros2.node import Ros2Bridge, Ros2Options
     from wftool.verify.session import VerifySession
 
-    bridge = Ros2Bridge(Ros2Options(namespace=NAMESPACE))
+    bridge = Ros2Bridge(Ros2Options(namespace=NAMESPACE, accept_commands=True))
     reads = _Reads(bridge.encoder.wall_offset_ns)
     stop = threading.Event()
-    session = VerifySession(url, sinks=[bridge, reads])
+    session = VerifySession(url, sinks=[bridge, reads], commander=bridge)
     runner = threading.Thread(target=lambda: session.run(stop=stop), daemon=True)
     runner.start()
     conn.send("ready")
@@ -182,18 +197,26 @@ def _run_node(url: str, seconds: float, conn: Connection) -> None:
     assert conn.recv() == "stop"
     reads.recording = False
     cpu, elapsed = time.process_time() - cpu0, time.monotonic() - start
+    gate = bridge.gate
+    assert gate is not None
+    settled = time.monotonic() + 10.0
+    while gate.pending and time.monotonic() < settled:  # the loop takes (or drops) the last
+        time.sleep(0.01)
     stop.set()
     runner.join(timeout=10)
-    conn.send((elapsed, cpu, reads.stamps.tobytes(), reads.reads.tobytes()))
+    commands = bridge.command_counts  # only the subscriber's process commanded, measuring
+    conn.send((elapsed, cpu, reads.stamps.tobytes(), reads.reads.tobytes(), commands))
 
 
 def _subscribe(seconds: float, conn: Connection) -> None:
     """fsp/imu, reliable, with the events executor: SETTLE_S after it matched the node, tell
-    it to measure, take `seconds` of frames: (seconds, cpu, stamps, receive times)."""
+    it to measure, take `seconds` of frames, commanding the node at `COMMAND_RATE_HZ`
+    meanwhile: (seconds, cpu, stamps, receive times)."""
     import rclpy
     from rclpy.experimental import EventsExecutor
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import Imu
+    from wftool_msgs.msg import RcCommand
 
     from wftool.ros2.node import DEFAULT_DEPTH
 
@@ -211,6 +234,19 @@ def _subscribe(seconds: float, conn: Connection) -> None:
 
     qos = QoSProfile(depth=DEFAULT_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
     subscription = node.create_subscription(Imu, IMU_TOPIC, take, qos)
+    commander = node.create_publisher(
+        RcCommand, COMMAND_TOPIC, QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+    )
+
+    def command() -> None:
+        message = RcCommand()
+        message.roll, message.pitch, message.yaw, message.throttle, message.aux3, message.aux4 = (
+            COMMAND_RC
+        )
+        stamp = node.get_clock().now().nanoseconds
+        message.header.stamp.sec, message.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
+        commander.publish(message)
+
     executor = EventsExecutor()
     executor.add_node(node)
     while subscription.get_publisher_count() == 0:
@@ -222,8 +258,12 @@ def _subscribe(seconds: float, conn: Connection) -> None:
     measuring = True
     cpu0, start = time.process_time(), time.monotonic()
     end = start + seconds
-    while time.monotonic() < end:
-        executor.spin_once(timeout_sec=0.05)
+    next_command = start
+    while (now := time.monotonic()) < end:
+        if now >= next_command:
+            command()
+            next_command = now + 1 / COMMAND_RATE_HZ  # one at a time, never to catch up
+        executor.spin_once(timeout_sec=max(0.0, min(0.05, next_command - time.monotonic())))
     measuring = False
     cpu, elapsed = time.process_time() - cpu0, time.monotonic() - start
     conn.send((elapsed, cpu, stamps.tobytes(), received.tobytes()))
@@ -239,7 +279,7 @@ def _figures(
         "FspReader", frames, elapsed, cpu, Distribution.of(v / 1e3 for v in array("q", latencies))
     )
     sub_elapsed, sub_cpu, stamps_raw, received_raw = received
-    node_elapsed, node_cpu, node_stamps_raw, reads_raw = published
+    node_elapsed, node_cpu, node_stamps_raw, reads_raw, commands = published
     stamps, receive = array("q", stamps_raw), array("q", received_raw)
     read_at = dict(zip(array("q", node_stamps_raw), array("q", reads_raw)))
     node_figures = ReaderFigures(
@@ -262,4 +302,5 @@ def _figures(
         received_of_published=sum(1 for s in window if s in taken),
         hop=Distribution.of(hops),
         subscriber_cpu_percent=100 * sub_cpu / sub_elapsed if sub_elapsed else math.nan,
+        commands=commands,
     )

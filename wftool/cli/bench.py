@@ -207,7 +207,7 @@ def bench_stream(rates: str, seconds: float, binary: Path | None, project_dir: P
 def bench_ros2(seconds: float, rate_hz: int, binary: Path | None, project_dir: Path | None) -> None:
     """On the virtual FC: the ROS 2 node's CPU per kHz of frames and a subscriber's latency,
     beside FspReader reading the same stream (extra ros2)."""
-    from wftool.bench.ros2 import run_ros2_bench
+    from wftool.bench.ros2 import COMMAND_RATE_HZ, run_ros2_bench
     from wftool.cli.sitl import build_sitl
     from wftool.extras import require
 
@@ -243,6 +243,13 @@ def bench_ros2(seconds: float, rate_hz: int, binary: Path | None, project_dir: P
         f"subscriber: {result.received_of_published:,} of the {result.published:,} frames "
         f"published while it measured ({lost} lost); its own CPU "
         f"{result.subscriber_cpu_percent:.1f} % of a core"
+    )
+    commands = result.commands
+    out.print(
+        f"commands at {COMMAND_RATE_HZ} Hz from the subscriber's process meanwhile: "
+        f"{commands.sent} of {commands.received} sent ({result.commands_sent_fraction:.1%}); "
+        f"{commands.superseded} superseded and {commands.stale} stale before the loop came "
+        f"to them, {commands.dropped - commands.superseded - commands.stale} dropped otherwise"
     )
 
 
