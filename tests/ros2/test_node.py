@@ -7,7 +7,7 @@ import itertools
 import os
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -293,6 +293,45 @@ def test_a_publisher_clock_stepping_back_30_s_costs_one_age_limit(bridge: Ros2Br
     after = [rc for rc in sent if rc[0] == 1200]
     assert counts.links == 2 and 1 <= counts.not_newer < 20, counts
     assert len(after) >= 100 - 20 and after[-1][3] == 1099  # through to its last command
+
+
+@pytest.mark.parametrize("bridge", [{"accept_commands": True}], indirect=True)
+def test_a_command_that_waited_for_a_stalled_executor_is_stale(bridge: Ros2Bridge):
+    """A command's age counts from when the middleware received it: one that waited in the
+    reader's queue past the age limit while the node's executor was held (a starved host)
+    never flies; the next, on time, does."""
+    hold, held, release = threading.Event(), threading.Event(), threading.Event()
+
+    def holding() -> None:  # another callback of the node's executor, stalled while `hold`
+        if hold.is_set():
+            held.set()
+            release.wait(timeout=30)
+
+    bridge._node.create_timer(0.01, holding)
+    topic = f"{bridge.options.namespace}/fsp/command"
+    late = [1100, *RC[1:]]
+    with _polling(bridge) as sent:
+        hold.set()
+        assert held.wait(timeout=10)
+        assert peers.command(topic, [{"rc": late}]) == "matched"  # published, then 0.5 s
+        hold.clear()
+        release.set()
+        assert _wait_for(lambda: bridge.command_counts.received == 1, 10.0)
+    assert sent == []
+    assert bridge.command_counts == CommandCounts(received=1, stale=1, links=1)
+    with _polling(bridge) as sent:
+        assert peers.command(topic, [{"rc": RC}]) == "matched"
+    assert sent == [tuple(RC)]
+    assert bridge.command_counts == CommandCounts(received=2, sent=1, stale=1, links=2)
+
+
+def _wait_for(condition: Callable[[], bool], timeout_s: float) -> bool:
+    end = time.monotonic() + timeout_s
+    while not condition():
+        if time.monotonic() > end:
+            return False
+        time.sleep(0.01)
+    return True
 
 
 @pytest.mark.parametrize("bridge", [{"accept_commands": True}], indirect=True)

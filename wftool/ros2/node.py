@@ -341,9 +341,12 @@ class Ros2Bridge:
 
     def _on_command(self, message: Any, info: Any) -> None:
         """A command from `fsp/command`: its publisher (the GID in the message info) and
-        its arrival on the node's monotonic clock go to the gate with it."""
+        its arrival on the node's monotonic clock go to the gate with it. It arrived when the
+        middleware received it (the message info's `received_timestamp`, on the wall clock),
+        not when the executor came to it: a command that waited in the reader's queue has
+        used up that much of its age limit."""
         assert self.gate is not None
-        arrived_ns = time.monotonic_ns()
+        arrived_ns = time.monotonic_ns() - _waited_ns(info)
         rc: tuple[int, ...] = (
             message.roll,
             message.pitch,
@@ -431,6 +434,17 @@ class _Published:
     packets: Sequence[StatePacket]
     health: StreamHealth | None
     uplink: UplinkReport | None
+
+
+def _waited_ns(info: Any) -> int:
+    """How long a message waited between the middleware's receipt (`received_timestamp` of
+    its message info, the wall clock) and now; 0 if the middleware did not say, or if the wall
+    clock stepped back meanwhile (a step forward makes it older: dropped sooner, never
+    sent later)."""
+    received = info.get("received_timestamp") if isinstance(info, dict) else None
+    if not received:
+        return 0
+    return max(0, time.time_ns() - int(received))
 
 
 def _message_class(name: str) -> type:
