@@ -163,6 +163,41 @@ def test_fc_clock_standing_still_while_learning_the_rate_is_learnt_past():
     assert link.worst_error_since(len(link.errors) - 10000) < 0.0015
 
 
+@pytest.mark.parametrize(
+    "steps",
+    [
+        ((2.0, 0.3), (5.0, 0.054)),  # the second in the window the rate is learnt again from
+        ((3.0, 0.054),),  # in the window the first rate comes from, after its middle
+        ((3.8, 0.054),),  # a bucket before the rate is known: the lock waits for the run
+    ],
+)
+def test_fc_clock_steps_while_learning_the_rate_never_lock_a_wrong_line(
+    steps: tuple[tuple[float, float], ...],
+):
+    """A loaded host re-anchors the virtual FC's lockstep clock (it stands still: `steps`,
+    (at s, for s)) while the envelope learns the rate, and the OBC reads late now and then:
+    each step is seen and learnt past, and no packet mapped while locked is off by a step."""
+    rng = random.Random(1)
+    estimator = EnvelopeClockEstimator()
+    packet_us, skew = 2 * PERIOD_US, 80e-6
+    worst, host_free = 0.0, 0.0
+    for n in range(int(16e6 / packet_us)):
+        fc_us, t = 5_000_000 + n * packet_us, n * packet_us * 1e-6
+        true = 1000.0 + t * (1 + skew) + sum(step for at, step in steps if t >= at)
+        arrival = true + MIN_DELAY_S + rng.expovariate(1 / JITTER_S)
+        if arrival > host_free and rng.random() < 0.01:  # the reader descheduled 5–50 ms
+            host_free = arrival + rng.uniform(5e-3, 50e-3)
+        estimator.observe(fc_us, max(arrival, host_free))
+        if estimator.state.locked:
+            mapped = estimator.to_obc(fc_us)
+            assert mapped is not None
+            worst = max(worst, abs(mapped - true - MIN_DELAY_S))
+    state = estimator.state
+    assert state.locked and state.steps == len(steps)
+    assert abs(state.rate_ppm - skew * 1e6) < 20
+    assert worst < 0.0015
+
+
 def test_fc_clock_without_obc_times_uses_half_range_rule():
     clock = FcClock()
     assert clock.unwrap(2**32 - 10) == (2**32 - 10, False)

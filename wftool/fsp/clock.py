@@ -343,15 +343,16 @@ class EnvelopeClockEstimator:
     µs from an anchor taken at the first packet — u = FC µs (an exact int), v = OBC µs − u
     (the residual against rate 1) — so float64 keeps sub-ns resolution over days.
 
-    Steps, watched once tracking: points far below the line (impossible for a positive delay)
-    from STEP_READS distinct reads, or the line dropping as far within STEP_CONFIRM_S, are a
-    backward step of the OBC clock; a lone such point is an outlier, rejected. STEP_READS
-    consecutive buckets, from distinct reads, whose lowest point stays far above the line are
-    a forward step (or the FC clock stood still); one read carrying many buckets is an OBC
-    stall, not a step. The offset restarts from the points after the step, the rate from
-    before it is kept (a property of the two crystals), and the step is counted. A step
-    while the rate was still being learnt (unseen then: its window spans the step, so the
-    first rate is wrong) leaves no rate to keep: it is learnt again after the step. Smaller
+    Steps: once tracking, points far below the line (impossible for a positive delay) from
+    STEP_READS distinct reads, or the line dropping as far within STEP_CONFIRM_S, are a
+    backward step of the OBC clock; a lone such point is an outlier, rejected. From the first
+    fit, STEP_READS consecutive buckets, from distinct reads, whose lowest point stays far
+    above the line are a forward step (or the FC clock stood still); one read carrying many
+    buckets is an OBC stall, not a step; no lock while such a run is open. The offset
+    restarts from the points after the step, the rate from before it is kept (a property of
+    the two crystals), and the step is counted. A step while the rate was still being learnt
+    (the window spans it: the rate, or the offset the lock would take, is wrong) leaves no
+    rate to keep: it is learnt again from the points after the step. Smaller
     steps than the thresholds pass as a change of delay: the line follows within a window,
     off by at most the step meanwhile. `reset` (FC reboot, reconnect) forgets everything.
 
@@ -479,20 +480,19 @@ class EnvelopeClockEstimator:
         self._window.drop_before(best[0] - self._window_us)
         self._fit()
         self._expire(obc_time)
+        # Watched while the rate is learnt too: a window spanning a step gives a wrong line.
+        if best[1] - self._slope * best[0] - self._intercept <= self._above_us:
+            self._high = []
+        else:
+            # One read may carry many buckets (the OBC stalled): only distinct reads count.
+            high = self._high
+            if not high or abs(sum(high[-1]) - sum(best)) > 1.0:  # u + v: arrival µs
+                high.append(best)
+            if len(high) >= self.STEP_READS:
+                self._step(high, u, obc_time, high[0][0])
+                return
         if not self._locked:
             self._check_lock(obc_time)
-        if (
-            not self._tracking
-            or best[1] - self._slope * best[0] - self._intercept <= self._above_us
-        ):
-            self._high = []
-            return
-        # One read may carry many buckets (the OBC stalled): only distinct reads count.
-        high = self._high
-        if not high or abs(sum(high[-1]) - sum(best)) > 1.0:  # u + v: arrival µs
-            high.append(best)
-        if len(high) >= self.STEP_READS:
-            self._step(high, u, obc_time, high[0][0])
 
     def _fit(self) -> None:
         window = self._window
@@ -528,7 +528,8 @@ class EnvelopeClockEstimator:
         window = self._window.points
         self._tracking = self._rate_known and (self._last_u - self._epoch_u >= self._offset_span_us)
         full = window[-1][0] - window[0][0] >= self._window_us - self._bucket_us
-        if self._tracking and (full or self._uncertainty_us() <= self.LOCK_UNCERTAINTY_S * 1e6):
+        settled = self._tracking and not self._high  # the newest bucket is no step's start
+        if settled and (full or self._uncertainty_us() <= self.LOCK_UNCERTAINTY_S * 1e6):
             self._locked = True
             self._lock_time = obc_time - self._epoch_obc
 
