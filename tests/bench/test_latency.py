@@ -8,6 +8,7 @@ uncertainty it reports, frame after frame.
 from __future__ import annotations
 
 import os
+import random
 import signal
 import threading
 import time
@@ -16,7 +17,10 @@ from pathlib import Path
 import pytest
 
 import wftool.bench.latency
-from wftool.bench.latency import run_latency_bench
+from tests.fsp.test_decoder import frame
+from wftool.bench.latency import STEP_SETTLE_S, _Capture, _replay, run_latency_bench
+from wftool.fsp import StatePacket
+from wftool.fsp.encoder import encode_state
 from wftool.sitl.session import VirtualFcSession
 
 
@@ -74,3 +78,27 @@ def test_estimators_lock_again_after_a_re_anchor_while_learning_the_rate(
     assert envelope.frames > 3000 and envelope.p99_s - result.min_delay_s < 1e-3
     assert two_way.frames > 3000 and two_way.within_uncertainty is not None
     assert two_way.within_uncertainty >= 0.99
+
+
+def test_a_re_anchor_after_lock_costs_the_frames_of_its_settling_time_and_no_more() -> None:
+    """The scoring, on a stream made here: the FC clock stands still 0.1 s at 10.2 s (a
+    re-anchor), after the envelope locked. Its frames within STEP_SETTLE_S are left out and
+    counted; every other frame is scored, and within a few µs of the truth."""
+    step_us, stood_s, period_us = 10_200_000, 0.1, 953
+    rng = random.Random(3)
+
+    def true_obc(fc_us: int) -> float:
+        return 100.0 + fc_us * 1e-6 + (stood_s if fc_us >= step_us else 0.0)
+
+    capture = _Capture()
+    for seq, t_us in enumerate(range(1_000_000, 16_000_000, 2 * period_us)):
+        packet = StatePacket(t_us + period_us + 50, (frame(t_us), frame(t_us + period_us)), seq)
+        arrival = true_obc(packet.tx_time_us) + 0.6e-3 + rng.expovariate(1 / 0.3e-3)
+        capture.events.append((arrival, encode_state(packet)))
+    scored = _replay("envelope", capture, true_obc, 0.6e-3, False, [step_us])
+    unscored = _replay("envelope", capture, true_obc, 0.6e-3, False)
+    settling = round(STEP_SETTLE_S * 1e6 / period_us)  # (those it delivered locked, at most)
+    assert 0 < scored.settling_frames <= settling and unscored.settling_frames == 0
+    assert scored.frames + scored.settling_frames == unscored.frames > 5000
+    assert scored.p99_s - 0.6e-3 < 20e-6
+    assert unscored.p99_s > stood_s / 2  # the step's frames, scored, would be the p99

@@ -15,6 +15,7 @@ from typing import TypeVar
 
 from wftool.bench.clock import _p99_abs, _rms
 from wftool.fsp import CommandPacket, FspReader, StateDecoder
+from wftool.fsp.clock import EnvelopeClockEstimator
 from wftool.fsp.estimators import ESTIMATORS
 from wftool.fsp.schedule import DEFAULT_RATE_HZ
 from wftool.fsp.twoway import RoundTrip, TwoWayClockEstimator
@@ -24,6 +25,10 @@ from wftool.stats import Distribution, quantile
 
 COMMAND = (1500, 1500, 1500, 1000, 1000, 1000)
 READ_TIMEOUT_S = 0.05
+STEP_SETTLE_S = (EnvelopeClockEstimator.STEP_READS + 1) * EnvelopeClockEstimator.BUCKET_S
+"""FC time after a re-anchor whose frames are not scored: the virtual FC's clock stood still
+while the host caught up (a board's never does), and the envelope takes a step for a delay
+until STEP_READS buckets after the one it fell in."""
 
 
 @dataclass(frozen=True)
@@ -43,6 +48,8 @@ class EstimatorError:
     """Two-way: the share of frames whose true error is within the reported uncertainty."""
     uncertainty_s: float | None = None
     """Two-way: the median uncertainty it reported."""
+    settling_frames: int = 0
+    """Frames after lock within STEP_SETTLE_S of a re-anchor: in none of the figures above."""
 
 
 @dataclass(frozen=True)
@@ -125,9 +132,11 @@ def _replay(
     true_obc: Callable[[int], float],
     min_delay_s: float,
     time_reply: bool,
+    steps_us: Sequence[int] = (),
     on_round_trip: Callable[[RoundTrip], None] | None = None,
 ) -> EstimatorError:
-    """The run's bytes and commands through a decoder with estimator `name`, scored."""
+    """The run's bytes and commands through a decoder with estimator `name`, scored but for
+    the frames within STEP_SETTLE_S after the FC times `steps_us` (the re-anchors)."""
     decoder = StateDecoder(name, time_replies=time_reply)
     matcher = decoder.round_trips
     if matcher is not None:
@@ -138,6 +147,8 @@ def _replay(
     covered = 0
     uncertainties: list[float] = []
     first = lock = math.nan
+    settle_us = STEP_SETTLE_S * 1e6
+    settling = 0
     for t, payload in capture.events:
         if isinstance(payload, CommandPacket):
             if matcher is not None:
@@ -155,7 +166,11 @@ def _replay(
             lock = t - first
         for packet in packets:
             for frame in packet.frames:
-                error = _decoded(frame.obc_time) - true_obc(_decoded(frame.time_us))
+                fc_us = _decoded(frame.time_us)
+                if any(0 <= fc_us - step < settle_us for step in steps_us):
+                    settling += 1
+                    continue
+                error = _decoded(frame.obc_time) - true_obc(fc_us)
                 errors.append(error)
                 if two_way is not None:
                     covered += abs(error) <= state.uncertainty_s
@@ -170,6 +185,7 @@ def _replay(
         envelope_rms_s=math.nan if two_way else _rms([e - min_delay_s for e in errors]),
         within_uncertainty=covered / len(errors) if two_way and errors else None,
         uncertainty_s=quantile(sorted(uncertainties), 0.5) if uncertainties else None,
+        settling_frames=settling,
     )
 
 
@@ -214,8 +230,9 @@ def run_latency_bench(
     def collect(trip: RoundTrip) -> None:
         rtts.append(trip.rtt_s)
 
+    steps = [anchor.fc_us for anchor in truth.anchors if anchor.reason != "start"]
     scored = tuple(
-        _replay(name, capture, true_obc, min_delay, time_reply, collect if two else None)
+        _replay(name, capture, true_obc, min_delay, time_reply, steps, collect if two else None)
         for name in names
         for two in [name == "twoway"]
     )
@@ -242,5 +259,5 @@ def run_latency_bench(
         round_trips=len(rtts),
         rtt=_us(rtts),
         round_trip_rejected=rejected,
-        reanchors=sum(1 for a in truth.anchors if a.reason != "start"),
+        reanchors=len(steps),
     )

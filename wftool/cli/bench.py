@@ -276,7 +276,7 @@ def bench_latency(
 ) -> None:  # fmt: skip
     """On the virtual FC, against its true clock: each clock estimator's true error, and the
     true latency from FC sample to decoded frame."""
-    from wftool.bench.latency import run_latency_bench
+    from wftool.bench.latency import STEP_SETTLE_S, run_latency_bench
     from wftool.cli.sitl import build_sitl
 
     result = run_latency_bench(
@@ -300,6 +300,11 @@ def bench_latency(
             "–" if e.uncertainty_s is None else f"{e.uncertainty_s * 1e6:.1f}",
         )  # fmt: skip
     out.print(table)
+    if settling := max(e.settling_frames for e in result.estimators):
+        out.print(
+            f"not scored: up to {settling:,} frames within {STEP_SETTLE_S:g} s of FC time after a "
+            "re-anchor (the virtual FC's clock stood still; a board's does not)"
+        )
     out.print(f"true minimum delay d_min (FC send → OBC read): {result.min_delay_s * 1e6:.1f} µs")
     table = Table(title="true latency to the decoded frame", box=None, pad_edge=False)
     for column in ("from", "P50 µs", "P99 µs", "max µs"):
