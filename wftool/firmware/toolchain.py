@@ -19,8 +19,6 @@ import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
-import requests
-
 from wftool.errors import ToolchainError, UsageError
 from wftool.progress import Progress, no_progress
 
@@ -313,6 +311,8 @@ def _check_installed(directory: Path, expected: str | None) -> None:
 
 def _download(url: str, part: Path, progress: Progress) -> None:
     """Fetch URL into PART, continuing where an interrupted download stopped."""
+    import requests  # here: its import is a seventh of every `wftool` command's start
+
     offset = part.stat().st_size if part.exists() else 0
     headers = {"Range": f"bytes={offset}-"} if offset else {}
     try:
