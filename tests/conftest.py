@@ -18,6 +18,7 @@ import random
 import shutil
 import subprocess
 from collections.abc import Iterator
+from importlib.util import find_spec
 from pathlib import Path
 from typing import Any
 
@@ -270,6 +271,13 @@ def answers_msp(fc: VirtualFC) -> bool:
             return msp.fc_variant() == "BTFL"
         except MspError:
             return False
+
+
+NEEDS_MATPLOTLIB = pytest.mark.skipif(
+    find_spec("matplotlib") is None, reason="needs the analysis extra (Matplotlib)"
+)
+"""For a module's `pytestmark`: Matplotlib found, not imported (its import takes ~0.4 s of CPU
+in every worker that collects the module)."""
 
 
 def run_cli(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str, str]:

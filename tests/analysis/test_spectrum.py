@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import run_cli
+from tests.conftest import NEEDS_MATPLOTLIB, run_cli
 from tests.recording.test_reader import RecordingMonitor
 from wftool.fsp import SensorFrame, StatePacket
 from wftool.fsp.encoder import encode_state
@@ -16,7 +16,7 @@ from wftool.recording.recorder import Recorder
 
 np = pytest.importorskip("numpy", reason="needs the analysis extra (NumPy)")
 pytest.importorskip("scipy", reason="needs the analysis extra (SciPy)")
-image = pytest.importorskip("matplotlib.image", reason="needs the analysis extra (Matplotlib)")
+pytestmark = NEEDS_MATPLOTLIB
 
 from wftool.analysis.spectrum import Panel, read_series, spectrogram, write_series  # noqa: E402
 
@@ -64,7 +64,7 @@ def test_recording_spectrum_shows_the_tones_and_the_motors(tmp_path, capsys):
     code, stdout, stderr = run_cli(capsys, "analyze", "spectrum", str(recording), "--out", str(png))
     assert code == 0, stderr
     assert "120 Hz" in stdout and "250 Hz" in stdout
-    picture = image.imread(png)
+    picture = imread(png)
     assert picture.ndim == 3 and picture.shape[0] > 300 and picture.shape[1] > 800
 
     series = read_series(recording)
@@ -106,7 +106,7 @@ def test_series_panels_before_and_after(tmp_path, capsys):
     band = np.abs(spec.frequencies_hz - 150.0) <= 5.0
     ratio_db = 10 * np.log10(spec.power[1][band].sum() / spec.power[0][band].sum())
     assert ratio_db == pytest.approx(-40.0, abs=0.5)
-    two_panels = image.imread(tmp_path / "flight.spectrum.png")
+    two_panels = imread(tmp_path / "flight.spectrum.png")
     assert two_panels.shape[0] > 1.5 * 504  # taller than a one-panel figure (4.2 in at 120 dpi)
 
 
@@ -173,3 +173,10 @@ def test_missing_extra_is_one_line_and_exit_2(tmp_path, capsys, monkeypatch):
     code, _, stderr = run_cli(capsys, "analyze", "accfilter", "--out", str(tmp_path / "r"))
     assert code == 2 and "SciPy and Unicorn: pip install 'wftool[analysis]'" in stderr
     assert not (tmp_path / "r").exists()
+
+
+def imread(path: Path) -> np.ndarray:
+    """The picture at `path` (Matplotlib, imported here: see `NEEDS_MATPLOTLIB`)."""
+    from matplotlib import image
+
+    return image.imread(path)

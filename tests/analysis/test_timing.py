@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 from mcap.writer import Writer
 
-from tests.conftest import run_cli
+from tests.conftest import NEEDS_MATPLOTLIB, run_cli
 from tests.recording.test_reader import RecordingMonitor
 from wftool.errors import UsageError
 from wftool.fc.msp import Cmd, MspVersion, encode_request
@@ -30,7 +30,7 @@ from wftool.recording.recorder import Recorder
 from wftool.verify.session import replay
 
 np = pytest.importorskip("numpy", reason="needs the analysis extra (NumPy)")
-pytest.importorskip("matplotlib", reason="needs the analysis extra (Matplotlib)")
+pytestmark = NEEDS_MATPLOTLIB
 
 from wftool.analysis.timing import load_timing, table_rows  # noqa: E402
 

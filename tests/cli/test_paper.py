@@ -13,9 +13,9 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import run_cli
+from tests.conftest import NEEDS_MATPLOTLIB, run_cli
 
-pytest.importorskip("matplotlib", reason="needs the analysis extra (Matplotlib)")
+pytestmark = NEEDS_MATPLOTLIB
 
 FILES = (
     "report.md", "table1.json", "msp-115200/metadata.yaml", "msp-1000000/metadata.yaml",
