@@ -7,7 +7,7 @@ import itertools
 import os
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -20,6 +20,7 @@ from tests.recording.test_rosbag import (
     flight,
 )
 from tests.ros2 import peers
+from tests.waits import wait_for
 from wftool.errors import Ros2Error, UsageError
 from wftool.fsp import Authority, AuthorityExit, SensorFrame, UplinkFlag, UplinkStatus
 from wftool.recording.events import new_uplink
@@ -316,22 +317,13 @@ def test_a_command_that_waited_for_a_stalled_executor_is_stale(bridge: Ros2Bridg
         assert peers.command(topic, [{"rc": late}]) == "matched"  # published, then 0.5 s
         hold.clear()
         release.set()
-        assert _wait_for(lambda: bridge.command_counts.received == 1, 10.0)
+        assert wait_for(lambda: bridge.command_counts.received == 1, 10.0)
     assert sent == []
     assert bridge.command_counts == CommandCounts(received=1, stale=1, links=1)
     with _polling(bridge) as sent:
         assert peers.command(topic, [{"rc": RC}]) == "matched"
     assert sent == [tuple(RC)]
     assert bridge.command_counts == CommandCounts(received=2, sent=1, stale=1, links=2)
-
-
-def _wait_for(condition: Callable[[], bool], timeout_s: float) -> bool:
-    end = time.monotonic() + timeout_s
-    while not condition():
-        if time.monotonic() > end:
-            return False
-        time.sleep(0.01)
-    return True
 
 
 @pytest.mark.parametrize("bridge", [{"accept_commands": True}], indirect=True)
