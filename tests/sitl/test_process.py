@@ -14,6 +14,7 @@ import sys
 import threading
 import time
 from collections.abc import Iterator
+from itertools import pairwise
 from pathlib import Path
 from typing import IO
 
@@ -22,6 +23,8 @@ import pytest
 from tests.waits import wait_for
 from wftool.errors import PortInUseError, SitlError
 from wftool.fc.msp import Cmd, MspClient, RebootMode, encode_request
+from wftool.fsp import FspReader, StatePacket
+from wftool.fsp.schedule import lockstep_interval
 from wftool.sitl.process import (
     LOOPBACK,
     MAX_PORT_BASE,
@@ -31,7 +34,7 @@ from wftool.sitl.process import (
     ports_in_use,
     uart_url,
 )
-from wftool.sitl.session import Motion
+from wftool.sitl.session import FSP_UART, Motion, VirtualFcSession
 from wftool.sitl.truth import read_lateness
 
 
@@ -456,3 +459,43 @@ def test_the_sitl_ends_with_wftool_however_wftool_ends(
     # Ctrl-C is how `wftool sitl` is meant to stop: that is a success
     expected = {signal.SIGINT: 0, signal.SIGKILL: -signal.SIGKILL}.get(sig, 128 + sig)
     assert code == expected
+
+
+@pytest.mark.skipif(GDB is None, reason="needs gdb (scripts/setup installs it)")
+@pytest.mark.skipif(platform.machine() != "x86_64", reason="the break reads an x86-64 register")
+def test_a_late_first_gyro_run_leaves_every_frame_on_the_gyro_grid(
+    sitl_binary: Path, tmp_path: Path
+) -> None:
+    """The boot's first gyro run 70 us after the scheduler's target, as a loaded host may run
+    it (gdb moves the target as the lockstep clock starts, at its `prctl(PR_SET_TIMERSLACK)`),
+    an FSP client connected before that: every frame of the first second is one lockstep
+    interval after the one before. A clock started on that run rather than on the target ran
+    the PID loop early at task steps that fell between a target and its sample (frames ~20 us
+    early, 22 us in a full run). Whether a task's step falls there depends on the boot: the
+    old clock failed this test in 2 of 11 boots (targets moved 10-110 us)."""
+    with VirtualFcSession(sitl_binary, tmp_path, port_base=None) as session:
+        rate_hz = session.rate_hz  # configured and saved: eeprom.bin in tmp_path
+    stopped, go = tmp_path / "stopped", tmp_path / "go"
+    # the scheduler's gyro target (a static: LTO names it lastTargetCycles.lto_priv.N) moved
+    # 70 us (35,000 cycles at SITL's 500 MHz) before the run, as if the run came that late
+    script = (
+        "set pagination off\nset confirm off\nbreak prctl if $rdi == 29\n"
+        "commands\nsilent\npython\nimport re\n"
+        'said = gdb.execute("info variables ^lastTargetCycles", to_string=True)\n'
+        'target = re.search(r"lastTargetCycles[.\\w]*$", said, re.M).group(0)\n'
+        "gdb.execute(f\"set var *(unsigned int *)&'{target}' -= 35000\")\nend\n"
+        f"shell touch {stopped}; while [ ! -e {go} ]; do sleep 0.01; done\n"
+        "delete\ncontinue\nend\nrun\n"
+    )
+    with sitl_in_gdb(sitl_binary, tmp_path, script) as (base, log):
+        assert wait_for(stopped.exists, 30), log.read_text()[-500:]
+        with FspReader(uart_url(FSP_UART, base)) as reader:
+            go.touch()
+            packets: list[StatePacket] = []
+            assert wait_for(lambda: packets.extend(reader.read(0.05)) or len(packets) > 1000, 30)
+        with MspClient.open(uart_url(1, base)) as msp:
+            looptime_us = msp.pid_looptime_us()
+    times = [frame.time_us for p in packets for frame in p.frames]
+    period = lockstep_interval(rate_hz, looptime_us) * looptime_us
+    off = [(a, b) for a, b in pairwise(times) if b - a != period]
+    assert not off, f"frames not {period} us apart: {off[:5]}"
