@@ -15,6 +15,8 @@ times would measure the host).
 
 from __future__ import annotations
 
+import re
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -23,8 +25,9 @@ import pytest
 
 from wftool.fc.fsp_setup import ObcOnly, SafetyPilot
 from wftool.fsp.framing import STATE_VERSIONS, Deframer, Rejection
+from wftool.fsp.packets import ArmingAction
 from wftool.fsp.reader import FspPort
-from wftool.preflight.flight import Flight
+from wftool.preflight.flight import WAIT_S, Flight
 from wftool.preflight.report import Report
 from wftool.preflight.run import STALLED, Preflight
 from wftool.preflight.scenarios import ALONE, BY_KEY, PILOT, SCENARIOS
@@ -94,3 +97,43 @@ def test_a_stream_never_commanded_is_plain_v5(sitl_binary: Path, tmp_path: Path)
         while time.monotonic() < until:
             plain.feed(port.read_bytes(0.05))
         assert plain.rejected[Rejection.LENGTH] >= 1
+
+
+def test_a_disarm_the_scenarios_did_not_send_is_said_where_it_shows(
+    sitl_binary: Path, tmp_path: Path
+) -> None:
+    """The OBC alone, armed: a disarm request no scenario sent, mid-scenario, is named in the
+    line that watched (from when, what the FC showed); the next scenario says the FC is no
+    longer armed, arms it again and is judged on its own."""
+    alone = ObcOnly("drop")
+    with on_virtual_fc(
+        sitl_binary, control=alone, port_base=None, workdir=tmp_path, arm=True
+    ) as run:
+        run.read()
+        with run.flying() as flight:
+            flight.report = Report()
+
+            def disarm_once_armed() -> None:
+                """Once armed, disarm requests until the FC shows it disarmed (one read in
+                the FSP task run of a command after it is superseded, spec §11)."""
+                if not flight.watcher.wait(lambda s: s.armed, time.monotonic(), WAIT_S):
+                    return
+                for _ in range(10):
+                    asked = time.monotonic()
+                    flight.obc.request_arming(ArmingAction.DISARM)
+                    if flight.watcher.wait(lambda s: not s.armed, asked, 0.2):
+                        return
+
+            disarming = threading.Thread(target=disarm_once_armed)
+            disarming.start()
+            run.play(flight, BY_KEY["default_command"])
+            disarming.join()
+            watched = flight.report.lines[-1]
+            assert not watched.passed and "disarmed in " in watched.measured, watched
+            assert re.search(r"from \d+ ms on \(.*; uplink: ", watched.measured), watched
+            flight.report = Report()
+            run.play(flight, BY_KEY["default_command"])
+    said = {line.name: line for line in flight.report.lines}
+    assert not said["the FC is still armed from before"].passed
+    assert said["the OBC (an arming request) arms (--arm)"].passed
+    assert said["the README's command: the FC stays armed, no mode switches"].passed

@@ -239,7 +239,14 @@ class Flight:
         through an ARM range on AUX3/AUX4). False, with a failed line, if the FC does not
         arm; once it did not, `what` is not checked (saying so) and no arming is tried."""
         if self.armed:
-            return True
+            latest = self.watcher.latest()
+            if latest.armed:
+                return True
+            flags = latest.status.arming_disabled
+            self.report.check(  # Betaflight disarmed it since: armed again, this is said
+                "the FC is still armed from before", False, f"disarmed ({flags!r})", "armed"
+            )
+            self.armed = False
         if self.arming_failed:
             self.report.not_checked(what, "the FC could not be armed (above)")
             return False
