@@ -12,14 +12,13 @@ from __future__ import annotations
 
 import socket
 import time
-from collections.abc import Callable
 from pathlib import Path
 
+from tests.sitl.fresh import send_fresh
 from wftool.fc.msp import MspClient
 from wftool.fsp import DEFAULT_BAUDRATE, FspReader, StateDecoder, StatePacket
 from wftool.fsp.encoder import encode_command
 from wftool.fsp.packets import COMMAND_LENGTH, STATE_LENGTH, CommandPacket
-from wftool.fsp.twoway import RoundTrip
 from wftool.sitl.process import LOOPBACK, VirtualBoard
 from wftool.sitl.session import VirtualFcSession
 from wftool.sitl.truth import TrueClock
@@ -33,8 +32,6 @@ RAW_IMU_REPLY = 6 + 18
 """An MSPv1 reply: `$M>`, length, command, 9 × int16, checksum."""
 MEASURED = 100
 ANSWERED_MIN = 95
-NEVER_S = 5.0
-"""The FC answers a command within a few ms and reports its counts every 100 ms."""
 
 
 def wire_s(nbytes: int, baud: int) -> float:
@@ -57,77 +54,23 @@ def test_an_fsp_packet_arrives_its_wire_time_after_its_newest_sample(
     assert min(delays) >= wire_s(STATE_LENGTH + 2, DEFAULT_BAUDRATE) - 1e-6
 
 
-def read_until(reader: FspReader, condition: Callable[[], bool], what: str) -> None:
-    """Read the stream until `condition()` holds; NEVER_S only bounds "never"."""
-    until = time.monotonic() + NEVER_S
-    while not condition():
-        assert time.monotonic() < until, f"no {what} within {NEVER_S} s"
-        reader.read(0.01)
-
-
-def fate(
-    reader: FspReader, trips: list[RoundTrip], packet: CommandPacket, obc_sent: float, sent: int
-) -> tuple[bool, bool]:
-    """What the FC made of `packet`, the last of the `sent` commands (sent at `obc_sent`):
-    whether it took it fresh, and whether it answered it (a round trip). Known once its reply
-    is in or its uplink status (E3) counts every command sent; a reply comes ahead of that
-    status, so a fresh command without one is a reply lost."""
-
-    def answered() -> bool:
-        return bool(trips) and trips[-1].obc_sent == obc_sent
-
-    def reported() -> bool:
-        status = reader.uplink_status
-        return status is not None and status.accepted + status.stale >= sent
-
-    read_until(reader, lambda: answered() or reported(), f"fate of command {packet.seq}")
-    status = reader.uplink_status
-    newest_fresh = status is not None and status.command_seq == packet.seq
-    return answered() or newest_fresh, answered()
-
-
 def test_the_fc_receives_a_command_its_wire_time_after_it_was_sent(
     sitl_binary: Path, tmp_path: Path
 ) -> None:
-    """Measured on MEASURED commands the FC took fresh, by its own report: it answers only
-    the newest fresh command of an FSP task run, and one that reaches it more than
-    `fsp_cmd_timeout_ms` after the one before, by its clock, only starts a new link (spec
-    §10, §11). A loaded host delays the SITL's TCP reader while FC time goes on: commands a
-    host period apart then reach the FC in bursts, and after timeouts (one full run: 48
-    replies to 100 commands sent 20 ms apart). So each command goes out alone, once the FC
-    has answered the one before or reported what it made of it; after one it did not take, a
-    pair: the first starts the link, the second is measured."""
-    trips: list[RoundTrip] = []
+    """Measured on MEASURED commands the FC took fresh, by its own report, each sent alone
+    (tests/sitl/fresh.py): a loaded host delays the SITL's TCP reader while FC time goes on,
+    and commands a host period apart then reach the FC in bursts, and after timeouts (one
+    full run: 48 replies to 100 commands sent 20 ms apart)."""
     session = VirtualFcSession(sitl_binary, tmp_path, port_base=None, board=PACED, time_reply=True)
     with session, FspReader(session.fsp_url, decoder=StateDecoder("twoway")) as reader:
-        matcher = reader.decoder.round_trips
-        assert matcher is not None
-        matcher.on_round_trip = trips.append
-        read_until(reader, lambda: reader.decoder.stats.packets > 0, "state packet")
-        sent = answered = unanswered = not_fresh = 0
-        linked = False  # the first command of a link only starts it
-        while answered + unanswered < MEASURED:
-            assert not_fresh < MEASURED, f"the FC took {answered + unanswered} of {sent} fresh"
-            obc_sent = time.monotonic()
-            if linked:
-                packet = reader.send_command(COMMAND, obc_sent)
-                sent += 1
-            else:  # one write: no host stall comes between the two
-                opener = reader.sender.next(COMMAND, obc_sent - 1e-6)
-                packet = reader.sender.next(COMMAND, obc_sent)
-                reader.port.write(encode_command(opener) + encode_command(packet))
-                sent += 2
-            linked, replied = fate(reader, trips, packet, obc_sent, sent)
-            answered += replied
-            unanswered += linked and not replied
-            not_fresh += not linked
+        fates = send_fresh(reader, COMMAND, MEASURED)
         truth = TrueClock(session.fc.log_path)
     status = reader.uplink_status
     assert status is not None and status.rejected == 0
-    assert answered >= ANSWERED_MIN
+    assert fates.answered >= ANSWERED_MIN
     wire = len(encode_command(CommandPacket(COMMAND)))
     assert wire >= COMMAND_LENGTH + 2
-    waits = [truth.instant(trip.fc_received_us) - trip.obc_sent for trip in trips]
+    waits = [truth.instant(trip.fc_received_us) - trip.obc_sent for trip in fates.trips]
     assert min(waits) >= wire_s(wire, DEFAULT_BAUDRATE) - 1e-6
 
 
