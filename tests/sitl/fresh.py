@@ -22,8 +22,8 @@ from wftool.fsp.twoway import RoundTrip
 NEVER_S = 5.0
 """The FC answers a command within a few ms and reports its counts every 100 ms."""
 TAIL_US = 200_000
-"""FC time read on after the last command's fate, for two uplink status periods: a late
-second reply to a command would be in by then."""
+"""FC time read on after the last command, two uplink status periods: a late second reply to
+a command would be in by then."""
 
 
 def read_until(reader: FspReader, condition: Callable[[], bool], what: str) -> None:
@@ -32,6 +32,27 @@ def read_until(reader: FspReader, condition: Callable[[], bool], what: str) -> N
     while not condition():
         assert time.monotonic() < until, f"no {what} within {NEVER_S} s"
         reader.read(0.01)
+
+
+def reported(reader: FspReader, sent: int, after_us: int | None = None) -> bool:
+    """Whether the FC's newest uplink status (E3) counts `sent` commands, fresh or stale (the
+    FC's counts since it booted: this reader's sender is its only one); with `after_us`,
+    in a status it sent at or after that FC time."""
+    status = reader.uplink_status
+    return (
+        status is not None
+        and status.accepted + status.stale >= sent
+        and (after_us is None or (status.sent_us is not None and status.sent_us >= after_us))
+    )
+
+
+def read_reports(reader: FspReader, sent: int) -> None:
+    """Read on until an uplink status sent `TAIL_US` of FC time from now counts all `sent`
+    commands: a late second reply to any of them is in by then."""
+    newest = reader.decoder.last_packet
+    assert newest is not None and newest.time_us is not None
+    after_us = newest.time_us + TAIL_US
+    read_until(reader, lambda: reported(reader, sent, after_us), "status counting every command")
 
 
 def fate(
@@ -45,11 +66,9 @@ def fate(
     def answered() -> bool:
         return bool(trips) and trips[-1].obc_sent == obc_sent
 
-    def reported() -> bool:
-        status = reader.uplink_status
-        return status is not None and status.accepted + status.stale >= sent
-
-    read_until(reader, lambda: answered() or reported(), f"fate of command {packet.seq}")
+    read_until(
+        reader, lambda: answered() or reported(reader, sent), f"fate of command {packet.seq}"
+    )
     status = reader.uplink_status
     newest_fresh = status is not None and status.command_seq == packet.seq
     return answered() or newest_fresh, answered()
@@ -84,8 +103,7 @@ def send_fresh(reader: FspReader, rc: Sequence[int], count: int) -> Fates:
     fresh command is then one measured alone (the FC's `accepted` counts exactly these), and
     each reaches the FC in an FSP task run of its own.
 
-    Ends once the FC has reported every command sent, in an uplink status sent `TAIL_US` of
-    FC time after the last fate was known."""
+    Ends once the FC has reported every command sent (`read_reports`)."""
     fates = Fates()
     matcher = reader.decoder.round_trips
     if matcher is not None:
@@ -109,18 +127,5 @@ def send_fresh(reader: FspReader, rc: Sequence[int], count: int) -> Fates:
         fates.answered += replied
         fates.unanswered += linked and not replied
         fates.not_fresh += not linked
-    newest = reader.decoder.last_packet
-    assert newest is not None and newest.time_us is not None
-    tail_from = newest.time_us + TAIL_US
-
-    def reported_after_tail() -> bool:
-        status = reader.uplink_status
-        return (
-            status is not None
-            and status.accepted + status.stale >= fates.sent
-            and status.sent_us is not None
-            and status.sent_us >= tail_from
-        )
-
-    read_until(reader, reported_after_tail, "uplink status counting every command")
+    read_reports(reader, fates.sent)
     return fates
