@@ -15,8 +15,6 @@ times would measure the host).
 
 from __future__ import annotations
 
-import re
-import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -27,7 +25,7 @@ from wftool.fc.fsp_setup import ObcOnly, SafetyPilot
 from wftool.fsp.framing import STATE_VERSIONS, Deframer, Rejection
 from wftool.fsp.packets import ArmingAction
 from wftool.fsp.reader import FspPort
-from wftool.preflight.flight import WAIT_S, Flight
+from wftool.preflight.flight import Flight
 from wftool.preflight.report import Report
 from wftool.preflight.run import STALLED, Preflight
 from wftool.preflight.scenarios import ALONE, BY_KEY, PILOT, SCENARIOS
@@ -35,6 +33,8 @@ from wftool.preflight.virtual import on_virtual_fc
 from wftool.sitl.session import VirtualFcSession
 
 Flown = tuple[Preflight, Flight]
+NEVER_S = 60.0
+"""Only bounds "never": arming may wait out the FC's own delays on a loaded host."""
 
 
 def _flying(
@@ -99,12 +99,12 @@ def test_a_stream_never_commanded_is_plain_v5(sitl_binary: Path, tmp_path: Path)
         assert plain.rejected[Rejection.LENGTH] >= 1
 
 
-def test_a_disarm_the_scenarios_did_not_send_is_said_where_it_shows(
+def test_a_disarm_no_scenario_sent_is_said_and_not_carried_into_the_next(
     sitl_binary: Path, tmp_path: Path
 ) -> None:
-    """The OBC alone, armed: a disarm request no scenario sent, mid-scenario, is named in the
-    line that watched (from when, what the FC showed); the next scenario says the FC is no
-    longer armed, arms it again and is judged on its own."""
+    """The OBC alone, armed by a scenario: disarmed by a request no scenario sent, the next
+    scenario says the FC is no longer armed, arms it again and is judged on its own (it took
+    its own flag for the FC's state, and failed on the disarm before it)."""
     alone = ObcOnly("drop")
     with on_virtual_fc(
         sitl_binary, control=alone, port_base=None, workdir=tmp_path, arm=True
@@ -112,25 +112,15 @@ def test_a_disarm_the_scenarios_did_not_send_is_said_where_it_shows(
         run.read()
         with run.flying() as flight:
             flight.report = Report()
-
-            def disarm_once_armed() -> None:
-                """Once armed, disarm requests until the FC shows it disarmed (one read in
-                the FSP task run of a command after it is superseded, spec §11)."""
-                if not flight.watcher.wait(lambda s: s.armed, time.monotonic(), WAIT_S):
-                    return
-                for _ in range(10):
-                    asked = time.monotonic()
-                    flight.obc.request_arming(ArmingAction.DISARM)
-                    if flight.watcher.wait(lambda s: not s.armed, asked, 0.2):
-                        return
-
-            disarming = threading.Thread(target=disarm_once_armed)
-            disarming.start()
             run.play(flight, BY_KEY["default_command"])
-            disarming.join()
-            watched = flight.report.lines[-1]
-            assert not watched.passed and "disarmed in " in watched.measured, watched
-            assert re.search(r"from \d+ ms on \(.*; uplink: ", watched.measured), watched
+            assert flight.report.ok, flight.report.failed
+            flight.take_over("a disarm")
+            deadline = time.monotonic() + NEVER_S
+            while flight.watcher.latest().armed:  # one superseded in its FSP task run: again
+                assert time.monotonic() < deadline, "the FC took no disarm request"
+                asked = time.monotonic()
+                flight.obc.request_arming(ArmingAction.DISARM)
+                flight.watcher.wait(lambda s: not s.armed, asked, 1.0)
             flight.report = Report()
             run.play(flight, BY_KEY["default_command"])
     said = {line.name: line for line in flight.report.lines}

@@ -243,9 +243,10 @@ class Flight:
             if latest.armed:
                 return True
             flags = latest.status.arming_disabled
-            self.report.check(  # Betaflight disarmed it since: armed again, this is said
+            line = self.report.check(  # Betaflight disarmed it since: armed again, this is said
                 "the FC is still armed from before", False, f"disarmed ({flags!r})", "armed"
             )
+            self.report.lasting.append(line)  # a scenario played again does not say it again
             self.armed = False
         if self.arming_failed:
             self.report.not_checked(what, "the FC could not be armed (above)")
