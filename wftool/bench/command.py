@@ -46,9 +46,13 @@ OBC's clock keeps no fixed phase to the FC's tasks, the virtual FC's would."""
 LOCK_TIMEOUT_S = 60.0
 SETTLE_S = 0.2
 """After the last command: time for the last reports, replies and frames to arrive."""
+SETTLE_TIMEOUT_S = 5.0
 ROLL_BASE = 1000
 ROLL_VALUES = 1000
 """Command k carries roll ROLL_BASE + k mod ROLL_VALUES: the stream shows which one acts."""
+UNANSWERED_S = 0.5
+"""How far an unanswered immediate command is looked for in the frames beside the nearest
+answered one (command k's roll comes back ROLL_VALUES commands later: 1 s at 1000 Hz)."""
 
 
 @dataclass(frozen=True)
@@ -69,13 +73,16 @@ class CommandRow:
     """Timed: never applied for what the OBC sent (`wftool.fsp.timed.REFUSED`: too far
     ahead, the queue full, expired)."""
     superseded: int
-    """Timed: a newer command acted in its place."""
+    """A newer command acted in its place. Timed: by its report; immediate: no time reply,
+    and its roll never in the FC's frames between the answered commands around it (a newer
+    one came in the same FSP task run; a command the FC found stale, E3, is not applied
+    either)."""
     unlocked: int
     """Timed: commands not sent because the clock had lost its lock (the SITL re-anchored
     after its host fell behind: the FC clock stepped against the host's)."""
     unreported: int
     """Timed: commands with no report (not fresh, or the report lost); immediate: with no
-    time reply (a newer command came in the same FSP task run)."""
+    time reply (superseded, or applied and its reply lost)."""
     apply: Distribution | None
     """FC time of the application − the intended instant on the FC clock (true)."""
     seen: Distribution | None
@@ -85,6 +92,12 @@ class CommandRow:
     − the FC time asked for (its rule: at most one PID period)."""
     latest_us: float | None = None
     """Timed: the latest command applied late, by the FC's account (µs after its time)."""
+    expired: int = 0
+    """Timed, of `refused`: expired (spec §13), a host that stalled the OBC's loop sent them
+    after their time."""
+    expired_after_us: float | None = None
+    """Timed, the expired ones: the least of the FC time it refused one at − its time, by
+    the FC's account (expired on arrival: at least the command timeout)."""
 
 
 @dataclass(frozen=True)
@@ -107,6 +120,11 @@ class CommandBenchResult:
     """How late the host let the FC reach its instants over the run (the SITL's own count)."""
     stale: int = 0
     """Commands the FC found not fresh (E3): the first of each new sequence after silence."""
+    accepted: int = 0
+    """Commands the FC took fresh (E3)."""
+    packets: int = 0
+    """Commands the OBC sent, those that locked the clock included (the FC counts each
+    fresh or stale: one sender, the FC started for the run)."""
     lost_reports: int = 0
     """Command reports the FC counted (its cumulative counts) that did not arrive."""
     rejected: dict[str, int] = field(default_factory=dict)
@@ -170,6 +188,8 @@ def run_command_bench(
         reanchors=sum(1 for a in truth.anchors if a.reason != "start"),
         lateness=lateness,
         stale=status.stale if status is not None else 0,
+        accepted=status.accepted if status is not None else 0,
+        packets=run.reader.sender.seq,
         lost_reports=run.reports.lost,
         rejected={k.value: v for k, v in run.decoder.stats.rejected.items() if v},
     )
@@ -276,10 +296,43 @@ class _Run:
             self.send(mode, rate, intended)
 
     def settle(self) -> None:
-        until = time.monotonic() + SETTLE_S
-        while (left := until - time.monotonic()) > 0:
-            self.read(min(0.01, left))
+        """Read the last reports, replies and frames, and the FC's books (E3) up to the last
+        command (it sends them every 100 ms; `SETTLE_TIMEOUT_S` only bounds "never")."""
+        until, deadline = time.monotonic() + SETTLE_S, time.monotonic() + SETTLE_TIMEOUT_S
+        while (left := until - time.monotonic()) > 0 or (
+            not self._counted() and time.monotonic() < deadline
+        ):
+            self.read(min(0.01, max(left, READ_S)))
         self.reader.close()
+
+    def _counted(self) -> bool:
+        """Whether the newest uplink status counts every command sent, fresh or stale."""
+        status = self.decoder.uplink_status
+        return status is not None and status.accepted + status.stale >= self.reader.sender.seq
+
+
+def _never_acted(run: _Run, sent: list[_Sent], frame_times: list[int]) -> int:
+    """Immediate commands with no time reply whose roll no frame shows between the answered
+    commands before and after it (FC times of their replies): the FC never applied them."""
+    taken = [run.applied_us.get((s.packet.seq, s.packet.tx_time_us)) for s in sent]
+    window_us = round(UNANSWERED_S * 1e6)
+    never = 0
+    for k, record in enumerate(sent):
+        if taken[k] is not None:
+            continue
+        before = next((t for t in reversed(taken[:k]) if t is not None), None)
+        after = next((t for t in taken[k + 1 :] if t is not None), None)
+        if before is not None:
+            low, high = before, before + window_us if after is None else after
+        elif after is not None:
+            low, high = after - window_us, after
+        else:
+            continue  # nothing to bound it by
+        frames = run.frames[
+            bisect.bisect_right(frame_times, low) : bisect.bisect_left(frame_times, high)
+        ]
+        never += all(roll != record.packet.rc[0] for _, roll in frames)
+    return never
 
 
 def _frame_period_us(frames: list[tuple[int, int]]) -> float:
@@ -309,8 +362,11 @@ def _row(
     seen: list[float] = []
     asked: list[float] = []
     outcomes: Counter[CommandOutcome] = Counter()
+    if mode == IMMEDIATE:
+        outcomes[CommandOutcome.SUPERSEDED] = _never_acted(run, sent, frame_times)
     answered = 0
     latest = -math.inf
+    expired_after = math.inf
     for record in sent:
         key = (record.packet.seq, record.packet.tx_time_us)
         if mode == TIMED:
@@ -319,6 +375,8 @@ def _row(
                 continue
             answered += 1
             outcomes[CommandOutcome(report.outcome)] += 1
+            if report.outcome == CommandOutcome.EXPIRED:
+                expired_after = min(expired_after, float(report.after_us))
             if not report.applied or report.event_time_us is None or report.delay_us is None:
                 continue
             applied_us = report.event_time_us
@@ -351,4 +409,6 @@ def _row(
         seen=Distribution.of(seen),
         asked=Distribution.of(asked) if mode == TIMED else None,
         latest_us=latest if math.isfinite(latest) else None,
+        expired=outcomes[CommandOutcome.EXPIRED],
+        expired_after_us=expired_after if math.isfinite(expired_after) else None,
     )

@@ -392,7 +392,7 @@ def bench_command(
         table.add_row(
             row.mode, f"{row.rate_hz:g}", f"{row.lead_ms:g}" if timed else "–",
             f"{row.sent:,}", f"{row.applied:,}",
-            *((f"{row.late}", f"{row.refused}", f"{row.superseded}") if timed else ("–",) * 3),
+            *((f"{row.late}", f"{row.refused}") if timed else ("–",) * 2), f"{row.superseded}",
             *_spread(row.apply),
         )  # fmt: skip
     out.print(table)
@@ -431,7 +431,8 @@ def bench_command(
     unlocked = sum(row.unlocked for row in result.rows)
     out.print(
         f"{host}; timed commands not sent while the clock was unlocked: {unlocked}; "
-        f"stale (E3): {result.stale}; reports lost: {result.lost_reports}"
+        f"the FC's books (E3): {result.accepted:,} fresh, {result.stale:,} stale of "
+        f"{result.packets:,} commands; reports lost: {result.lost_reports}"
     )
     out.print(_command_note(result))
 

@@ -621,10 +621,14 @@ class CommandReport:
     def delay_us(self) -> int | None:
         """Applied: FC µs from the time it asked for to the PID iteration that applied it
         (negative: never; late: how late); None when it was not applied."""
-        if not self.applied:
-            return None
-        delay = (self.event_us - self.at_us) % U32_MODULUS
-        return delay - U32_MODULUS if delay >= U32_MODULUS // 2 else delay
+        return self.after_us if self.applied else None
+
+    @property
+    def after_us(self) -> int:
+        """FC µs from the time it asked for to its event (applied, refused or dropped): the
+        signed u32 difference `event_us` − `at_us`."""
+        after = (self.event_us - self.at_us) % U32_MODULUS
+        return after - U32_MODULUS if after >= U32_MODULUS // 2 else after
 
 
 def parse_state(payload: bytes) -> StatePacket:
