@@ -17,10 +17,14 @@ from cobs import cobs
 from tests.conftest import run_cli
 from tests.fsp.test_decoder import PERIOD, packet_at, stream
 from tests.verify.fake_fc import FRAME_RATE_HZ, PACKET_S, FakeFc, intact
+from tests.waits import wait_for
 from wftool.errors import UsageError, VerificationFailed
 from wftool.fsp.framing import encode_frame
 from wftool.verify.criteria import RATE_UNCHECKED, Criteria, judge
 from wftool.verify.session import VerifySession, criteria_for, replay
+
+NEVER_S = 30.0
+"""Only bounds "never": a run that waits for what the fake FC did."""
 
 
 @pytest.fixture
@@ -171,7 +175,20 @@ def test_a_crc_error_at_the_start_of_each_connection_is_an_error() -> None:
     one after it is no chunk cut by joining mid-stream."""
     second_damaged = lambda index, nth: crc_damaged(index) if nth == 1 else intact(index)  # noqa: E731
     with FakeFc(second_damaged, connected_s=(1.0, 1.0), outages_s=(0.3, 0.3)) as fc:
-        result = VerifySession(fc.url, duration_s=3.8).run()
+        # until the third connection has streamed past its damaged packet, however late the
+        # host runs the fake FC (3.8 s of host clock cut it off before then on a loaded host)
+        done = threading.Event()
+
+        def third_connection_streamed() -> None:
+            wait_for(lambda: fc.connections == 3, NEVER_S)
+            first = len(fc.sent)
+            wait_for(lambda: len(fc.sent) >= first + 10, NEVER_S)
+            done.set()
+
+        watcher = threading.Thread(target=third_connection_streamed, daemon=True)
+        watcher.start()
+        result = VerifySession(fc.url, duration_s=NEVER_S).run(stop=done)
+        watcher.join()
     summary = result.summary
     assert fc.connections == 3 and summary.reconnects == 2
     assert summary.rejected["crc"] == 3 and summary.sync_rejected == 0
