@@ -43,6 +43,8 @@ TIMEOUT_US = 50_000
 """The FC's fsp_cmd_timeout_ms (the default)."""
 NEVER_S = 5.0
 """The FC reports a timed command once it acts or is refused, and its counts every 100 ms."""
+RELOCK_S = 30.0
+"""Only bounds "never": the clock locks again from the frames alone, in seconds."""
 LEAD_S = 0.020
 """How far ahead of its instant the OBC sends a command: more than its link's worst delay, as
 an OBC should lead. Here the link is the host's scheduler, which a loaded host stretches to
@@ -154,12 +156,18 @@ class TimedObc:
         """`count` timed commands at `rate_hz`, each sent `lead_s` before its instant; the
         packets sent. A host that kept the OBC from sending one `lead_s` ahead moves the
         schedule on from then, as an OBC sends no command for an instant it has missed (sent
-        at once after a stall of 0.46 s, 40 of 300 were expired on arrival)."""
+        at once after a stall of 0.46 s, 40 of 300 were expired on arrival); one whose clock
+        unlocked (the virtual FC re-anchored) sends again once it has locked again (the
+        stream raised `ClockError` in a loaded full run)."""
         sent = []
         slot = time.monotonic() + lead_s
         for k in range(count):
             while (left := slot - lead_s - time.monotonic()) > 0:
                 self.read(min(left, 0.0005))
+            if not self.decoder.clock_state.locked:  # a re-anchor: no FC time to send for
+                assert wait_for(
+                    lambda: self.decoder.clock_state.locked or self.pump(0.01), RELOCK_S, poll=0.0
+                ), f"the FC clock did not lock again: {self.decoder.clock_state}"
             slot = max(slot, time.monotonic() + lead_s)
             sent.append(self.send(roll(k), at=slot + self._rng.uniform(0.0, 0.001)))
             slot += 1 / rate_hz
