@@ -14,6 +14,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
+from tests.waits import wait_for
 from wftool.fsp import FspReader
 from wftool.fsp.encoder import encode_command
 from wftool.fsp.packets import CommandPacket
@@ -28,10 +29,14 @@ a command would be in by then."""
 
 def read_until(reader: FspReader, condition: Callable[[], bool], what: str) -> None:
     """Read the stream until `condition()` holds; NEVER_S only bounds "never"."""
-    until = time.monotonic() + NEVER_S
-    while not condition():
-        assert time.monotonic() < until, f"no {what} within {NEVER_S} s"
+
+    def read_then_check() -> bool:
         reader.read(0.01)
+        return condition()
+
+    assert wait_for(lambda: condition() or read_then_check(), NEVER_S, poll=0.0), (
+        f"no {what} within {NEVER_S} s"
+    )
 
 
 def reported(reader: FspReader, sent: int, after_us: int | None = None) -> bool:

@@ -117,10 +117,10 @@ class TimedObc:
         self.reader.port.write(encode_command(packet))
         return packet
 
-    def pump_until(self, condition: Callable[[], bool]) -> bool:
-        """Read until `condition()` holds: whether it did within NEVER_S (a bound on
+    def pump_until(self, condition: Callable[[], bool], never_s: float = NEVER_S) -> bool:
+        """Read until `condition()` holds: whether it did within `never_s` (a bound on
         "never")."""
-        return wait_for(lambda: condition() or self.pump(0.01), NEVER_S, poll=0.0)
+        return wait_for(lambda: condition() or self.pump(0.01), never_s, poll=0.0)
 
     def lock(self) -> None:
         """Immediate commands at about 100 Hz until the two-way clock is in use and the FC
@@ -165,9 +165,9 @@ class TimedObc:
             while (left := slot - lead_s - time.monotonic()) > 0:
                 self.read(min(left, 0.0005))
             if not self.decoder.clock_state.locked:  # a re-anchor: no FC time to send for
-                assert wait_for(
-                    lambda: self.decoder.clock_state.locked or self.pump(0.01), RELOCK_S, poll=0.0
-                ), f"the FC clock did not lock again: {self.decoder.clock_state}"
+                assert self.pump_until(lambda: self.decoder.clock_state.locked, RELOCK_S), (
+                    f"the FC clock did not lock again: {self.decoder.clock_state}"
+                )
             slot = max(slot, time.monotonic() + lead_s)
             sent.append(self.send(roll(k), at=slot + self._rng.uniform(0.0, 0.001)))
             slot += 1 / rate_hz
