@@ -27,7 +27,9 @@ OBJS := $(addprefix $(OBJECT_DIR)/,main.o util.o)
 
 $(OBJECT_DIR)/%.o: %.c
 \t@mkdir -p $(dir $@)
-\t@echo "%% (optimised) $<" && gcc -c -o $@ $(EXTRA_FLAGS) $<
+\t@echo "%% (optimised) $<" && $(CCACHE) gcc -MMD -MP -c -o $@ $(EXTRA_FLAGS) $<
+
+-include $(OBJS:.o=.d)
 
 $(TARGET_ELF): $(OBJS)
 \t@echo "Linking fw"
@@ -63,16 +65,16 @@ def fake_tree(tmp_path: Path) -> Path:
     return tree
 
 
-def command_for(tree: Path, tmp_path: Path, extra: str = "-DUTIL_VALUE=0") -> make.MakeCommand:
+def command_for(
+    tree: Path, tmp_path: Path, extra: str = "-DUTIL_VALUE=0", **env: str
+) -> make.MakeCommand:
     objects = tmp_path / "obj"
     hook = objects / "wftool.mk"
     make.write_hook(hook)
-    return make.MakeCommand(
-        tree=tree,
-        variables={"OBJECT_DIR": str(objects), "BIN_DIR": str(objects), "EXTRA_FLAGS": extra},
-        jobs=2,
-        hook=hook,
-    )
+    variables = make.object_dir_variables(tree, objects) | {"EXTRA_FLAGS": extra}
+    if env:  # through ccache, as wftool builds
+        variables["CCACHE"] = "ccache"
+    return make.MakeCommand(tree=tree, variables=variables, jobs=2, hook=hook, env=env)
 
 
 def test_plan_run_and_noop(fake_tree, tmp_path):
@@ -93,6 +95,29 @@ def test_plan_run_and_noop(fake_tree, tmp_path):
     assert "Linking fw" in (tmp_path / "out" / "build.log").read_text()
 
     assert make.plan(command).up_to_date
+
+
+@pytest.mark.skipif(not shutil.which("ccache"), reason="needs ccache")
+def test_a_changed_header_recompiles_its_units_whether_ccache_compiled_or_served_them(
+    fake_tree, tmp_path
+):
+    """Make knows each object by the name its dependency file gives it, both for a unit
+    ccache compiled (a miss: it rewrites an absolute `-o` below CCACHE_BASEDIR) and for one
+    it served from its cache (a hit)."""
+    (fake_tree / "util.c").write_text('#include "util.h"\nint util(void) { return UTIL; }\n')
+    header = fake_tree / "util.h"
+    command = command_for(
+        fake_tree, tmp_path, "", CCACHE_DIR=str(tmp_path / "cache"),
+        CCACHE_BASEDIR=str(tmp_path), CCACHE_NOHASHDIR="true",
+    )  # fmt: skip
+    for cache in ("compiled", "served"):  # the second time every unit is in the cache
+        for stale in (tmp_path / "obj").glob("*.[od]"):
+            stale.unlink()
+        header.write_text("#define UTIL 0\n")
+        assert make.run(command, tmp_path / "build.log").compiled == 2
+        assert make.plan(command).up_to_date
+        header.write_text("#define UTIL 1\n")
+        assert make.plan(command).units == ["util.c"], cache
 
 
 def test_failure_names_the_first_error_and_the_log(fake_tree, tmp_path, monkeypatch):

@@ -192,7 +192,7 @@ def prepare(
         json.dumps([compile_settings, str(compiler.gcc), compiler.version]).encode()
     ).hexdigest()[:12]
     object_dir = project.build_dir / ".obj" / f"{target.name}-{key}"
-    variables |= {"OBJECT_DIR": str(object_dir), "BIN_DIR": str(object_dir)}
+    variables |= make.object_dir_variables(project.tree, object_dir)
     env = {"CCACHE_BASEDIR": str(project.root), "CCACHE_NOHASHDIR": "true", **CCACHE_DIRECT}
     if not options.ccache:
         env["CCACHE_DISABLE"] = "1"

@@ -131,7 +131,7 @@ def check_against(
         target = resolve_target(project, SITL)
         variables = make_variables(target, config_dir, compiler, BuildFlags())
         object_dir = scratch / "obj"
-        variables |= {"OBJECT_DIR": str(object_dir), "BIN_DIR": str(object_dir)}
+        variables |= make.object_dir_variables(repo, object_dir)
         command = make.MakeCommand(
             tree=repo,
             variables=variables,

@@ -18,10 +18,10 @@ from wftool.progress import Progress, no_progress
 HOOK_MAKEFILE = """\
 # Written by wftool and read after Betaflight's Makefile (make -f Makefile -f wftool.mk).
 # It reports what wftool records in manifest.json and builds every output in one make.
-$(info wftool-var elf=$(TARGET_ELF))
-$(info wftool-var hex=$(TARGET_HEX))
-$(info wftool-var bin=$(TARGET_BIN))
-$(info wftool-var exe=$(TARGET_EXE))
+$(info wftool-var elf=$(abspath $(TARGET_ELF)))
+$(info wftool-var hex=$(abspath $(TARGET_HEX)))
+$(info wftool-var bin=$(abspath $(TARGET_BIN)))
+$(info wftool-var exe=$(abspath $(TARGET_EXE)))
 $(info wftool-var output=$(DEFAULT_OUTPUT))
 $(info wftool-var revision=$(REVISION))
 $(info wftool-var version=$(FC_VER))
@@ -108,6 +108,18 @@ class MakeRun:
     compiled: int
     usage: Usage | None
     seconds: float
+
+
+def object_dir_variables(tree: Path, object_dir: Path) -> dict[str, str]:
+    """OBJECT_DIR and BIN_DIR for OBJECT_DIR, relative to TREE (where make runs).
+
+    A dependency file names its object as the compiler's `-o` did. With CCACHE_BASEDIR, ccache
+    rewrites an absolute `-o` below it to a relative one when it compiles, and keeps it absolute
+    when it serves a hit: an object compiled fresh then got a rule make never matched to its
+    absolute name, and a changed header did not recompile it. Given relative, both agree.
+    """
+    relative = os.path.relpath(object_dir, tree)
+    return {"OBJECT_DIR": relative, "BIN_DIR": relative}
 
 
 def write_hook(path: Path) -> None:
