@@ -112,7 +112,7 @@ def run_ros2_bench(
             assert subscriber_end.recv() == "measure"  # matched, and settled
             node_end.send("measure")
             received = subscriber_end.recv()
-            node_end.send("stop")
+            node_end.send(("stop", received[-1]))  # with the commands the subscriber published
             published = node_end.recv()
             node.join(timeout=30)
             subscriber.join(timeout=30)
@@ -194,13 +194,16 @@ def _run_node(url: str, seconds: float, conn: Connection) -> None:
     assert conn.recv() == "measure"
     cpu0, start = time.process_time(), time.monotonic()
     reads.recording = True
-    assert conn.recv() == "stop"
+    told, published = conn.recv()
+    assert told == "stop"
     reads.recording = False
     cpu, elapsed = time.process_time() - cpu0, time.monotonic() - start
     gate = bridge.gate
     assert gate is not None
+    # Every command published has reached the gate, and the loop has taken (or dropped) the
+    # last: then each is in one count. The bound only ends a wait for a command never coming.
     settled = time.monotonic() + 10.0
-    while gate.pending and time.monotonic() < settled:  # the loop takes (or drops) the last
+    while (gate.counts.received < published or gate.pending) and time.monotonic() < settled:
         time.sleep(0.01)
     stop.set()
     runner.join(timeout=10)
@@ -211,8 +214,9 @@ def _run_node(url: str, seconds: float, conn: Connection) -> None:
 def _subscribe(seconds: float, conn: Connection) -> None:
     """fsp/imu, reliable, with the events executor: SETTLE_S after it matched the node, tell
     it to measure, take `seconds` of frames, commanding the node at `COMMAND_RATE_HZ`
-    meanwhile: (seconds, cpu, stamps, receive times)."""
+    meanwhile: (seconds, cpu, stamps, receive times, commands published, all acknowledged)."""
     import rclpy
+    from rclpy.duration import Duration
     from rclpy.experimental import EventsExecutor
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import Imu
@@ -238,7 +242,10 @@ def _subscribe(seconds: float, conn: Connection) -> None:
         RcCommand, COMMAND_TOPIC, QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
     )
 
+    published = 0
+
     def command() -> None:
+        nonlocal published
         message = RcCommand()
         message.roll, message.pitch, message.yaw, message.throttle, message.aux3, message.aux4 = (
             COMMAND_RC
@@ -246,6 +253,7 @@ def _subscribe(seconds: float, conn: Connection) -> None:
         stamp = node.get_clock().now().nanoseconds
         message.header.stamp.sec, message.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
         commander.publish(message)
+        published += 1
 
     executor = EventsExecutor()
     executor.add_node(node)
@@ -266,7 +274,8 @@ def _subscribe(seconds: float, conn: Connection) -> None:
         executor.spin_once(timeout_sec=max(0.0, min(0.05, next_command - time.monotonic())))
     measuring = False
     cpu, elapsed = time.process_time() - cpu0, time.monotonic() - start
-    conn.send((elapsed, cpu, stamps.tobytes(), received.tobytes()))
+    commander.wait_for_all_acked(Duration(seconds=5))  # the node's reader has every command
+    conn.send((elapsed, cpu, stamps.tobytes(), received.tobytes(), published))
     node.destroy_node()
     rclpy.shutdown()
 
@@ -278,7 +287,7 @@ def _figures(
     direct_figures = ReaderFigures(
         "FspReader", frames, elapsed, cpu, Distribution.of(v / 1e3 for v in array("q", latencies))
     )
-    sub_elapsed, sub_cpu, stamps_raw, received_raw = received
+    sub_elapsed, sub_cpu, stamps_raw, received_raw, _ = received
     node_elapsed, node_cpu, node_stamps_raw, reads_raw, commands = published
     stamps, receive = array("q", stamps_raw), array("q", received_raw)
     read_at = dict(zip(array("q", node_stamps_raw), array("q", reads_raw)))
