@@ -3,7 +3,10 @@ to the sinks with a health snapshot; a sink given to a session is closed with it
 
 from __future__ import annotations
 
+import time
+
 from tests.fsp.test_decoder import stream
+from tests.verify.fake_fc import FakeFc
 from wftool.recording.events import Event, StreamHealth
 from wftool.verify.live import Dispatcher
 from wftool.verify.monitor import StreamMonitor
@@ -53,3 +56,34 @@ def test_a_session_closes_the_sinks_it_was_given():
     session = VerifySession("socket://127.0.0.1:9", duration_s=1.0, sinks=[sink])
     session.close()
     assert sink.closed
+
+
+class SlowSink(ListSink):
+    """Takes its time over each read's bytes, as a recorder writing a chunk or a loaded host
+    does; notes when it was done with the read before each command."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.done_at = 0.0
+        self.commands: list[tuple[float, float]] = []
+        """(the command's time, when the sink was done with the read before it)"""
+
+    def event(self, event: Event) -> None:
+        super().event(event)
+        if event.kind == "bytes":
+            # Longer than the fake FC's 5 ms between writes: every read finds bytes waiting,
+            # so the read after which a command is due has bytes for the sinks too.
+            time.sleep(0.006)
+            self.done_at = time.monotonic()
+        elif event.kind == "command":
+            self.commands.append((event.t, self.done_at))
+
+
+def test_a_command_is_stamped_when_it_is_sent_not_when_the_read_before_it_returned():
+    """A read's bytes go to the sinks before the command due then is sent: the command's
+    time (its `tx_time_us`, and what a timed command's lead counts from) comes after that."""
+    sink = SlowSink()
+    with FakeFc() as fc:
+        VerifySession(fc.url, duration_s=1.0, uplink_rate_hz=50.0, sinks=[sink]).run()
+    assert len(sink.commands) >= 10
+    assert all(sent >= done for sent, done in sink.commands), sink.commands

@@ -213,8 +213,8 @@ class _LiveRun:
         return t, port
 
     def _exchange(self, port: FspPort, t: float) -> float:
-        """One read, and the command that is due; the time the read returned (`t` if the
-        port went away, which drops it)."""
+        """One read, and the command that is due; the time the read returned, or the command
+        was sent (`t` if the port went away, which drops it)."""
         commander = self._commander
         # A read returns at once when bytes come; else it waits no longer than the next command.
         wait = READ_TIMEOUT_S
@@ -229,6 +229,9 @@ class _LiveRun:
                 rc = commander.command(t)
                 if rc is not None:
                     rc = tuple(rc)
+                    # Its own time, after the read's bytes were dispatched (decoded, recorded):
+                    # a timed command's lead counts from when it leaves, not from the read.
+                    t = self._now()
                     command = self._send(port, rc, t)
                     self._emit(Event("command", t, rc=rc), command)
                     commander.sent(t)
