@@ -315,13 +315,24 @@ def _never_acted(run: _Run, sent: list[_Sent], frame_times: list[int]) -> int:
     """Immediate commands with no time reply whose roll no frame shows between the answered
     commands before and after it (FC times of their replies): the FC never applied them."""
     taken = [run.applied_us.get((s.packet.seq, s.packet.tx_time_us)) for s in sent]
+    # The reply before and after each command: one pass each way.
+    before_of: list[int | None] = []
+    last = None
+    for t in taken:
+        before_of.append(last)
+        last = t if t is not None else last
+    after_of: list[int | None] = []
+    last = None
+    for t in reversed(taken):
+        after_of.append(last)
+        last = t if t is not None else last
+    after_of.reverse()
     window_us = round(UNANSWERED_S * 1e6)
     never = 0
     for k, record in enumerate(sent):
         if taken[k] is not None:
             continue
-        before = next((t for t in reversed(taken[:k]) if t is not None), None)
-        after = next((t for t in taken[k + 1 :] if t is not None), None)
+        before, after = before_of[k], after_of[k]
         if before is not None:
             low, high = before, before + window_us if after is None else after
         elif after is not None:
