@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import pytest
 
+from tests.conftest import REPO
 from tests.tiers import SHARED_TREES
 
 STAND_INS = """
@@ -149,3 +150,39 @@ def test_a_quick_test_that_needs_a_tier_fails_naming_its_fixture(
     for name, message in expected.items():
         assert name in said, f"{name} passed: the guard let it through"
         assert "TierError" in said[name] and message in said[name], said[name]
+
+
+PROPERTIES = """
+from hypothesis import given, settings, strategies as st
+
+from tests.tiers import examples
+
+drawn = {"own": 0, "default": 0}
+
+
+@settings(max_examples=examples(60), database=None)
+@given(st.integers())
+def test_its_own_count(n):
+    drawn["own"] += 1
+
+
+@settings(database=None)
+@given(st.integers())
+def test_the_default_count(n):
+    drawn["default"] += 1
+
+
+def test_report():
+    print("drawn", drawn["own"], drawn["default"])
+"""
+
+
+@pytest.mark.parametrize(("args", "own", "default"), [((), 60, 100), (("--quick",), 20, 33)])
+def test_the_quick_tier_draws_a_third_of_each_propertys_examples_and_the_full_suite_all(
+    pytester: pytest.Pytester, monkeypatch: pytest.MonkeyPatch, args: tuple, own: int, default: int
+) -> None:
+    pytester.makepyfile(test_properties=PROPERTIES)
+    monkeypatch.setenv("PYTHONPATH", str(REPO))  # a process of its own: the profile is global
+    result = pytester.runpytest_subprocess("-p", "tests.tiers", "-p", "no:randomly", "-s", *args)
+    result.assert_outcomes(passed=3)
+    result.stdout.fnmatch_lines([f"*drawn {own} {default}*"])

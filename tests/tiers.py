@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from hypothesis import settings
 
 QUICK_OPTION = "--quick"
 
@@ -67,7 +68,24 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     )
 
 
+_quick = False
+"""This run is the quick tier (set before the test modules are imported)."""
+
+
+def examples(full: int) -> int:
+    """A property test's `max_examples`: `full` in the full suite, a third of it (20 at least)
+    in the quick tier. The quick tier is the edit-test loop, and drawing examples is most of
+    what these tests cost there; the full suite, which CI runs before anything lands, draws
+    them all."""
+    return max(20, full // 3) if _quick else full
+
+
 def pytest_configure(config: pytest.Config) -> None:
+    global _quick
+    _quick = bool(config.getoption(QUICK_OPTION))
+    if _quick:  # property tests that take hypothesis' default (100 examples) too
+        settings.register_profile("wftool-quick", settings(), max_examples=examples(100))
+        settings.load_profile("wftool-quick")
     for tier, names in TIER_FIXTURES.items():
         config.addinivalue_line(
             "markers", f"{tier}: uses {', '.join(sorted(names))} (set from the fixtures)"

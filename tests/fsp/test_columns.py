@@ -27,6 +27,7 @@ from tests.fsp.test_clock import MODEL as CLOCK_MODELS
 from tests.fsp.test_clock import splice_step
 from tests.fsp.test_decoder import frame
 from tests.recording.test_reader import record_two_connections
+from tests.tiers import examples
 from wftool.bench.clock import simulate
 from wftool.errors import UsageError
 from wftool.fsp import (
@@ -228,13 +229,13 @@ def test_physical_units_are_the_frames_own(vectors_dir: Path, name: str) -> None
         assert all(same_float(a, b) for a, b in flat), unit
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=examples(200), deadline=None)
 @given(packet_lists(max_size=30).map(lambda ps: b"".join(map(encode_state, ps))), st.data())
 def test_any_packets_any_reads(wire: bytes, data: st.DataObject) -> None:
     check(wire, *data.draw(reads(wire)))
 
 
-@settings(max_examples=100, deadline=None)
+@settings(max_examples=examples(100), deadline=None)
 @given(packet_lists(max_size=30, statuses=True), st.data())
 def test_uplink_statuses_of_both_lengths_are_counted_as_the_decoder_counts_them(
     packets: list, data: st.DataObject
@@ -246,7 +247,7 @@ def test_uplink_statuses_of_both_lengths_are_counted_as_the_decoder_counts_them(
     assert stats.uplink_statuses == sum(isinstance(p, UplinkStatus) for p in packets)
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=examples(300), deadline=None)
 @given(
     packet_lists(min_size=1, max_size=25).map(lambda ps: b"".join(map(encode_state, ps))),
     st.lists(corruption, max_size=12),
@@ -258,7 +259,7 @@ def test_corrupted_streams(wire: bytes, harms: list, garbage: bytes, data: st.Da
     check(stream, *data.draw(reads(stream)))
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=examples(200), deadline=None)
 @given(
     packet_lists(max_size=20).map(lambda ps: b"".join(map(encode_state, ps))),
     st.lists(corruption, max_size=4),
@@ -273,7 +274,7 @@ def test_reconnects_cut_the_chunk_across(wire: bytes, harms: list, data: st.Data
     check(stream, sizes, times, [c for c in connections if c < len(sizes)])
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=examples(200), deadline=None)
 @given(
     packet_lists(min_size=1, max_size=12).map(lambda ps: list(map(encode_state, ps))),
     st.lists(st.tuples(st.integers(0, 12), st.integers(0, 40)), max_size=6),
@@ -307,7 +308,7 @@ def test_a_run_of_zeros_costs_no_memory_for_its_length() -> None:
     assert peaks[32 << 20] < peaks[4 << 20] + (1 << 20), peaks
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=examples(200), deadline=None)
 @given(steady_streams(), st.booleans())
 def test_flights_with_loss_drops_wraps_resets(flight: tuple[bytes, list[float]], timed: bool):
     wire, times = flight
@@ -398,7 +399,7 @@ class LatestArrival:
         return ClockState(self.latest is not None, 0.0, math.nan, math.nan, 0, 0)
 
 
-@settings(max_examples=50, deadline=None)
+@settings(max_examples=examples(50), deadline=None)
 @given(steady_streams())
 def test_any_clock_estimator_is_told_what_state_decoder_tells_it(flight) -> None:
     wire, times = flight

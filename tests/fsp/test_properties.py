@@ -14,6 +14,7 @@ from tests.fsp.strategies import (
     state_packets,
     uplink_statuses,
 )
+from tests.tiers import examples
 from wftool.fsp import CommandDecoder, StateDecoder, UplinkStatus
 from wftool.fsp.encoder import (
     encode_arming_request,
@@ -65,7 +66,7 @@ def test_any_split_of_the_stream_gives_the_same_result(packets, data):
     assert decoder.stats == whole.stats
 
 
-@settings(max_examples=300)
+@settings(max_examples=examples(300))
 @given(
     packet_lists(min_size=1, max_size=25),
     st.lists(st.tuples(st.integers(0, 24), corruption), max_size=12),

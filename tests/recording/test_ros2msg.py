@@ -15,6 +15,7 @@ from hypothesis import strategies as st
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from tests.fsp.strategies import frames
+from tests.tiers import examples
 from wftool.fsp import Authority, AuthorityExit, SensorFrame, UplinkFlag, UplinkStatus
 from wftool.fsp.packets import FAILSAFE_PHASES
 from wftool.recording import ros2msg
@@ -139,7 +140,7 @@ def test_battery_rc_rpm_attitude(store):
     )
 
 
-@settings(max_examples=60)
+@settings(max_examples=examples(60))
 @given(frame_id=st.text(st.characters(min_codepoint=32, max_codepoint=126), max_size=40))
 def test_any_frame_id_moves_what_follows_the_header_by_the_rules(store, frame_id):
     """Every message with any frame id: the header's string shifts the rest of the message,
@@ -269,7 +270,7 @@ event_batches = st.lists(
 )
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=examples(200), deadline=None)
 @given(events=event_batches)
 def test_event_batches_round_trip_and_rosbags_agree(events_store, events):
     """A `StreamEvents` batch: our decoder gives the events back; rosbags, from the
@@ -296,7 +297,7 @@ def test_a_damaged_event_batch_is_a_clear_error():
         ros2msg.decode_events(b"\x00\x00" + message[2:])
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=examples(200), deadline=None)
 @given(frame=frames)
 def test_any_frame_encodes_as_rosbags_would(store, frame):
     """Over every wire value: rosbags decodes our bytes and re-encodes them identically."""

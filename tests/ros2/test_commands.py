@@ -10,6 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from tests.tiers import examples
 from wftool.fsp import ArmingAction, CommandSender
 from wftool.fsp.packets import RC_PULSE_US
 from wftool.ros2.commands import CommandCounts, CommandGate, Taken
@@ -183,7 +184,7 @@ offers = st.lists(
 )
 
 
-@settings(max_examples=500)
+@settings(max_examples=examples(500))
 @given(offers)
 def test_what_passes_is_fresh_in_range_newer_one_publisher_at_a_time_and_once(steps):
     gate = CommandGate(50 * MS)
@@ -218,7 +219,7 @@ def test_what_passes_is_fresh_in_range_newer_one_publisher_at_a_time_and_once(st
     assert counts.received == counts.sent + counts.dropped + gate.pending
 
 
-@settings(max_examples=300)
+@settings(max_examples=examples(300))
 @given(st.lists(st.integers(RC_MIN - 100, RC_MAX + 100), min_size=5, max_size=7))
 def test_the_gate_refuses_exactly_what_the_library_would_not_send(rc):
     """One definition of a command's values: what `CommandSender` (the library an OBC
