@@ -118,7 +118,7 @@ def object_dir_variables(tree: Path, object_dir: Path) -> dict[str, str]:
     when it serves a hit: an object compiled fresh then got a rule make never matched to its
     absolute name, and a changed header did not recompile it. Given relative, both agree.
     """
-    relative = os.path.relpath(object_dir, tree)
+    relative = os.path.relpath(object_dir.resolve(), tree.resolve())  # as make's cwd resolves
     return {"OBJECT_DIR": relative, "BIN_DIR": relative}
 
 
