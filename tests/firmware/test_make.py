@@ -66,14 +66,19 @@ def fake_tree(tmp_path: Path) -> Path:
 
 
 def command_for(
-    tree: Path, tmp_path: Path, extra: str = "-DUTIL_VALUE=0", **env: str
+    tree: Path, tmp_path: Path, extra: str = "-DUTIL_VALUE=0", *, ccache: bool = False
 ) -> make.MakeCommand:
+    """Make in TREE, objects in TMP_PATH/obj; with `ccache`, through a cache of its own in
+    TMP_PATH/cache whose base directory is TMP_PATH, as wftool builds."""
     objects = tmp_path / "obj"
     hook = objects / "wftool.mk"
     make.write_hook(hook)
     variables = make.object_dir_variables(tree, objects) | {"EXTRA_FLAGS": extra}
-    if env:  # through ccache, as wftool builds
+    env = {}
+    if ccache:
         variables["CCACHE"] = "ccache"
+        env = {"CCACHE_DIR": str(tmp_path / "cache"), "CCACHE_BASEDIR": str(tmp_path),
+               "CCACHE_NOHASHDIR": "true"}  # fmt: skip
     return make.MakeCommand(tree=tree, variables=variables, jobs=2, hook=hook, env=env)
 
 
@@ -106,10 +111,7 @@ def test_a_changed_header_recompiles_its_units_whether_ccache_compiled_or_served
     it served from its cache (a hit)."""
     (fake_tree / "util.c").write_text('#include "util.h"\nint util(void) { return UTIL; }\n')
     header = fake_tree / "util.h"
-    command = command_for(
-        fake_tree, tmp_path, "", CCACHE_DIR=str(tmp_path / "cache"),
-        CCACHE_BASEDIR=str(tmp_path), CCACHE_NOHASHDIR="true",
-    )  # fmt: skip
+    command = command_for(fake_tree, tmp_path, "", ccache=True)
     for cache in ("compiled", "served"):  # the second time every unit is in the cache
         for stale in (tmp_path / "obj").glob("*.[od]"):
             stale.unlink()

@@ -315,18 +315,7 @@ def _never_acted(run: _Run, sent: list[_Sent], frame_times: list[int]) -> int:
     """Immediate commands with no time reply whose roll no frame shows between the answered
     commands before and after it (FC times of their replies): the FC never applied them."""
     taken = [run.applied_us.get((s.packet.seq, s.packet.tx_time_us)) for s in sent]
-    # The reply before and after each command: one pass each way.
-    before_of: list[int | None] = []
-    last = None
-    for t in taken:
-        before_of.append(last)
-        last = t if t is not None else last
-    after_of: list[int | None] = []
-    last = None
-    for t in reversed(taken):
-        after_of.append(last)
-        last = t if t is not None else last
-    after_of.reverse()
+    before_of, after_of = _latest_before(taken), _latest_before(taken[::-1])[::-1]
     window_us = round(UNANSWERED_S * 1e6)
     never = 0
     for k, record in enumerate(sent):
@@ -344,6 +333,17 @@ def _never_acted(run: _Run, sent: list[_Sent], frame_times: list[int]) -> int:
         ]
         never += all(roll != record.packet.rc[0] for _, roll in frames)
     return never
+
+
+def _latest_before(values: list[int | None]) -> list[int | None]:
+    """For each position, the latest value before it that is not None (None: there is none)."""
+    latest: list[int | None] = []
+    last = None
+    for value in values:
+        latest.append(last)
+        if value is not None:
+            last = value
+    return latest
 
 
 def _frame_period_us(frames: list[tuple[int, int]]) -> float:
