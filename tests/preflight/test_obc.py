@@ -92,12 +92,16 @@ def test_a_restart_a_twin_and_a_clock_step(fc: FspStandIn) -> None:
         mine = [c for c in fc.commands[count:] if c.rc == README_COMMAND]
         assert twins and mine and twins[0].sender != mine[0].sender
         assert any(c.seq == twins[0].seq - 1 for c in mine)  # just ahead: a program started before
-        before = [c for c in fc.commands if c.sender == obc.sender.sender][-1]
-        obc.step_clock(-5.0, COMMAND)
-        until(lambda: fc.commands[-1].rc == COMMAND)
-        after = fc.commands[-1]
-        assert after.seq > before.seq
-        assert 4.9e6 < (before.tx_time_us - after.tx_time_us) % 2**32 < 5.1e6
+        before = obc.step_clock(-5.0, COMMAND)  # the last command stamped before the step
+        assert before is not None
+        until(lambda: obc.last_fresh is not None and obc.last_fresh.packet.seq > before.packet.seq)
+        after = obc.last_fresh
+        until(lambda: after.packet in fc.commands)  # the FC took it as it was written
+        assert after.packet.rc == COMMAND
+        # On the wire the stamp went back 5 s, less the host time between the two writes
+        # (however long a loaded host took to write the next one)
+        went_back_s = (before.packet.tx_time_us - after.packet.tx_time_us) % 2**32 * 1e-6
+        assert went_back_s + (after.written - before.written) == pytest.approx(5.0, abs=0.1)
 
 
 def test_one_command_out_of_range_or_timed(fc: FspStandIn) -> None:
