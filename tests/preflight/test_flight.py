@@ -8,8 +8,10 @@ from dataclasses import replace
 
 from tests.preflight.test_settings import PILOT_ARM, alone, piloted
 from wftool.fc.modes import MODE_ARM, AuxRange
+from wftool.fc.msp import ArmingDisabled, FcStatus
 from wftool.preflight.flight import Flight, away_from, largest_move, near
 from wftool.preflight.pilot import NoPilot
+from wftool.preflight.watcher import Snapshot
 
 
 def flight(settings, pilot_rc=()) -> Flight:  # type: ignore[no-untyped-def]
@@ -49,3 +51,31 @@ def test_armed_through_aux3_on_firmware_before_arming_requests() -> None:
     assert run.command()[4] == 1000  # disarmed: the switch off
     run.armed = True
     assert run.command()[4] == arm3.on_us
+
+
+def test_a_hold_that_lost_the_radio_says_from_when_and_what_the_fc_showed() -> None:
+    """The line names how many replies showed RXLOSS, from how long after its start, and
+    what the first of them showed: the evidence to tell a handover from a lost radio."""
+    pilot = (1500, 1500, 1500, 1000)
+
+    def seen(at: float, rx_loss: bool) -> Snapshot:
+        disabled = ArmingDisabled.RX_FAILSAFE if rx_loss else ArmingDisabled(0)
+        return Snapshot(at, at, pilot, FcStatus(0, disabled), True, False, False)
+
+    class Watcher:
+        def since(self, t: float) -> list[Snapshot]:
+            return [s for s in replies if s.asked >= t]
+
+    class Uplink:
+        status = None
+
+    replies = [seen(100.0 + 0.05 * i, rx_loss=i in (4, 5)) for i in range(10)]
+    run = Flight(Watcher(), Uplink(), NoPilot(), piloted(), armed=True)  # type: ignore[arg-type]
+    line = run.holds("hold", 100.0, pilot, seconds=0.45)
+    assert not line.passed
+    assert line.measured == (
+        "RXLOSS/failsafe in 2 of 10 MSP replies, from 200 ms on (RXLOSS, arming disabled "
+        f"{ArmingDisabled.RX_FAILSAFE!r}; uplink: no uplink status)"
+    )
+    replies[4:6] = [seen(100.2, False), seen(100.25, False)]
+    assert run.holds("hold", 100.0, pilot, seconds=0.45).passed

@@ -415,6 +415,21 @@ class Flight:
             return None
         return self.holds(f"{title}: it stays with the pilot", back.t, pilot, stays_s)
 
+    def shown(self, what: str, found: list[Snapshot], replies: int, start: float) -> str:
+        """How the FC was seen `what` from host time `start` on: in how many of its `replies`,
+        from when, what the first of `found` showed, and the newest uplink status."""
+        first = found[0]
+        showed = [
+            name for name, on in (("RXLOSS", first.rx_loss), ("failsafe", first.failsafe)) if on
+        ]
+        showed.append(f"arming disabled {first.status.arming_disabled!r}")
+        status = self.obc.status
+        said = "no uplink status" if status is None else describe(status)
+        return (
+            f"{what} in {len(found)} of {replies} MSP replies, from "
+            f"{(first.asked - start) * 1e3:.0f} ms on ({', '.join(showed)}; uplink: {said})"
+        )
+
     def holds(
         self, name: str, since: float, wanted: Sequence[int], seconds: float = HOLD_S
     ) -> Line:
@@ -426,10 +441,10 @@ class Flight:
         problems = []
         if moved > TOLERANCE_US:
             problems.append(f"sticks moved {moved} µs")
-        if any(s.rx_loss or s.failsafe for s in after):
-            problems.append("RXLOSS/failsafe")
-        if self.armed and any(not s.armed for s in after):
-            problems.append("disarmed")
+        if lost := [s for s in after if s.rx_loss or s.failsafe]:
+            problems.append(self.shown("RXLOSS/failsafe", lost, len(after), since))
+        if self.armed and (disarmed := [s for s in after if not s.armed]):
+            problems.append(self.shown("disarmed", disarmed, len(after), since))
         what = "the pilot flies" + (", armed" if self.armed else "")
         return self.report.check(
             f"{name}: {seconds:g} s on, {what}",

@@ -25,11 +25,10 @@ from wftool.preflight.flight import (
     TOLERANCE_US,
     WAIT_S,
     Flight,
-    describe,
     near,
 )
 from wftool.preflight.obc import README_COMMAND, Sent
-from wftool.preflight.watcher import STICKS, Snapshot
+from wftool.preflight.watcher import STICKS
 from wftool.sitl.radio import RX_LOSS_MS
 
 PILOT, ALONE = "safety pilot", "the OBC alone"
@@ -442,7 +441,7 @@ def _stays_armed(flight: Flight, title: str, start: float, seconds: float) -> No
             part
             for part in (
                 "" if seen else "no MSP reply",
-                _disarmed(flight, disarmed, len(seen), start) if disarmed else "",
+                flight.shown("disarmed", disarmed, len(seen), start) if disarmed else "",
                 f"modes switched (bits {sorted(switched)})" if switched else "",
             )
             if part
@@ -451,20 +450,6 @@ def _stays_armed(flight: Flight, title: str, start: float, seconds: float) -> No
         "yes",
     )
     flight.obc.behave("stopped")
-
-
-def _disarmed(flight: Flight, disarmed: list[Snapshot], replies: int, start: float) -> str:
-    """How the FC was seen disarmed from host time `start` on: in how many of its `replies`,
-    from when, what its first disarmed reply showed, and its newest uplink status."""
-    first = disarmed[0]
-    showed = [name for name, on in (("RXLOSS", first.rx_loss), ("failsafe", first.failsafe)) if on]
-    showed.append(f"arming disabled {first.status.arming_disabled!r}")
-    status = flight.obc.status
-    said = "no uplink status" if status is None else describe(status)
-    return (
-        f"disarmed in {len(disarmed)} of {replies} MSP replies, from "
-        f"{(first.asked - start) * 1e3:.0f} ms on ({', '.join(showed)}; uplink: {said})"
-    )
 
 
 def stage2(flight: Flight) -> None:
