@@ -73,7 +73,7 @@ def _parity_masks(length: int) -> tuple[int, ...]:
     """For `length`-byte data read as one big-endian integer, the bits whose parity is each
     bit of the register (from init 0): the CRC is linear, so register bit k is the XOR of
     the data bits that reach it, which `(value & mask_k).bit_count() & 1` counts in C."""
-    tables, _ = _position_tables(length)
+    tables = _position_tables(length)
     # reach[b][i]: what bit b of byte i adds to the register (every bit of it).
     reach = [bytes(table[1 << b] for table in tables) for b in range(8)]
     return tuple(
@@ -93,8 +93,9 @@ def _init_term(init: int, length: int) -> int:
 
 
 @lru_cache(maxsize=8)
-def _position_tables(length: int) -> tuple[tuple[bytes, ...], int]:
-    """Per byte position, what that byte adds to the final register; and what INIT adds.
+def _position_tables(length: int) -> tuple[bytes, ...]:
+    """Per byte position, what that byte adds to the final register (what INIT adds:
+    `_init_term`).
 
     A byte at position i passes through the table once per remaining byte, so the last
     position's table is TABLE and each earlier one is the next one passed through TABLE
@@ -103,7 +104,7 @@ def _position_tables(length: int) -> tuple[tuple[bytes, ...], int]:
     tables = [TABLE] * length
     for position in range(length - 2, -1, -1):
         tables[position] = tables[position + 1].translate(TABLE)
-    return tuple(tables), _init_term(INIT, length)
+    return tuple(tables)
 
 
 def crc8_residues(packets: Sequence[bytes], length: int) -> list[int]:
@@ -115,7 +116,7 @@ def crc8_residues(packets: Sequence[bytes], length: int) -> list[int]:
     count = len(packets)
     if count < _BATCH_MIN:
         return [crc8(packet) for packet in packets]
-    tables, init_term = _position_tables(length)
+    tables, init_term = _position_tables(length), _init_term(INIT, length)
     joined = b"".join(packets)
     # Column i holds byte i of every packet; XOR-fold the translated columns into one.
     columns = b"".join([joined[i::length].translate(tables[i]) for i in range(length)])
