@@ -9,12 +9,12 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Iterator
 
 import pytest
 
-from tests.waits import wait_for
 from wftool.fsp import Authority, AuthorityExit, UplinkFlag, UplinkStatus
 from wftool.sitl.radio import (
     _RC_PACKET,
@@ -23,6 +23,7 @@ from wftool.sitl.radio import (
     MID,
     RX_LOSS_MS,
     STALL_S,
+    SYNC_S,
     EngagingPilot,
     SimulatedRadio,
     channel_index,
@@ -111,10 +112,35 @@ def test_a_transmitter_its_host_stalled_says_so_and_one_taken_away_does_not(
         time.sleep(2 * STALL_S)
         os.kill(radio._process.pid, signal.SIGCONT)
         frame(rc_input)
-        assert wait_for(lambda: radio.stalls_since(start), timeout=5.0)
-        stalls = radio.stalls_since(start)
+        stalls = radio.stalls_since(start)  # the answer waits for the report
         assert len(stalls) == 1 and 2 * STALL_S <= stalls[0] < 2 * STALL_S + 1.0, stalls
         assert radio.stalls_since(time.monotonic()) == []
+
+
+def test_a_stall_going_on_when_asked_is_in_the_answer(rc_input: socket.socket) -> None:
+    """Asked while its host has stopped it, the transmitter answers once it runs again, its
+    stall in the answer; stopped for longer than `SYNC_S`, the answer counts the wait."""
+    with SimulatedRadio(rc_input.getsockname()[1]) as radio:
+        assert radio._process is not None
+        pid = radio._process.pid
+        start = time.monotonic()
+        frame(rc_input)
+        os.kill(pid, signal.SIGSTOP)
+        resume = threading.Timer(2 * STALL_S, os.kill, (pid, signal.SIGCONT))
+        resume.start()
+        stalls = radio.stalls_since(start)
+        resume.join()
+        assert len(stalls) == 1 and 2 * STALL_S <= stalls[0] < SYNC_S, stalls
+
+        start = time.monotonic()
+        os.kill(pid, signal.SIGSTOP)
+        try:
+            stalls = radio.stalls_since(start)
+        finally:
+            os.kill(pid, signal.SIGCONT)
+        assert len(stalls) == 1 and stalls[0] >= SYNC_S, stalls
+        frame(rc_input)
+        assert max(radio.stalls_since(start)) >= SYNC_S
 
 
 def test_the_transmitter_ends_when_its_holder_is_killed(rc_input: socket.socket) -> None:

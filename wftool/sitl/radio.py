@@ -15,6 +15,7 @@ whenever the FC reports it ready.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import selectors
@@ -42,6 +43,9 @@ RX_LOSS_MS = 150
 STALL_S = 0.8 * RX_LOSS_MS / 1000
 """A gap this long between two frames the transmitter meant to send in a row (its host
 stalled it): the FC may have counted the radio lost. The transmitter reports each one."""
+SYNC_S = 1.0
+"""How long `SimulatedRadio.stalls_since` waits for the transmitter's next frame; one not
+sent by then is a stall going on."""
 
 CHANNEL_NAMES = ("roll", "pitch", "throttle", "yaw")
 """Raw channels 1-4 under Betaflight's default map AETR1234; then AUX1, AUX2, ..."""
@@ -81,6 +85,11 @@ class SimulatedRadio:
         self._process: subprocess.Popen[str] | None = None
         self._stalls: list[tuple[float, float]] = []
         """(when it ended, how long) of each stall the transmitter reported (`STALL_S`)."""
+        self._heard = threading.Condition(self._lock)
+        self._syncs = 0
+        """Syncs asked of the transmitter, and the newest it answered (`stalls_since`)."""
+        self._synced = 0
+        self._reports_ended = False
 
     @property
     def frame_period_s(self) -> float:
@@ -113,9 +122,23 @@ class SimulatedRadio:
     def stalls_since(self, since: float) -> list[float]:
         """The gaps (s) between frames, each `STALL_S` or longer, that ended at or after
         `since` (the host's monotonic clock): the transmitter's host stalled it, and the FC
-        may have counted the radio lost. Reported once the next frame went out."""
+        may have counted the radio lost. Every gap that ended by the call is in: the
+        transmitter reports it once the next frame went out, so this waits for the next
+        tick's answer (up to `SYNC_S`: a transmitter silent that long is a stall going on,
+        counted as the time waited)."""
         with self._lock:
-            return [gap for ended, gap in self._stalls if ended >= since]
+            going_on = []
+            if self._process is not None and not self._reports_ended:
+                self._syncs += 1
+                wanted = self._syncs
+                asked = time.monotonic()
+                with contextlib.suppress(OSError):  # one that ended answers with its end
+                    self._write({"sync": wanted})
+                if not self._heard.wait_for(
+                    lambda: self._synced >= wanted or self._reports_ended, SYNC_S
+                ):
+                    going_on.append(time.monotonic() - asked)
+            return [gap for ended, gap in self._stalls if ended >= since] + going_on
 
     def transmitting(self, on: bool) -> None:
         """Switch the transmitter on or off (off: no frames, the FC's RX loss follows)."""
@@ -139,11 +162,19 @@ class SimulatedRadio:
         return self
 
     def _read_stalls(self, reports: IO[str] | None) -> None:
-        """Take the transmitter's stall reports (a JSON line each) until it ends."""
+        """Take the transmitter's stall reports and sync answers (a JSON line each) until it
+        ends."""
         for line in reports or ():
-            stall = json.loads(line)
+            report = json.loads(line)
             with self._lock:
-                self._stalls.append((stall["ended"], stall["gap"]))
+                if "synced" in report:
+                    self._synced = report["synced"]
+                else:
+                    self._stalls.append((report["ended"], report["gap"]))
+                self._heard.notify_all()
+        with self._lock:
+            self._reports_ended = True
+            self._heard.notify_all()
 
     def stop(self) -> None:
         with self._lock:
@@ -166,23 +197,29 @@ class SimulatedRadio:
 
     def _tell(self, hold_frames: int = 0) -> None:
         """Hand the state to the transmitter. Called with the lock held."""
+        self._write({"channels": self._channels, "on": self._on, "frames": hold_frames})
+
+    def _write(self, message: dict[str, Any]) -> None:
+        """A line to the transmitter. Called with the lock held."""
         if self._process is None or self._process.stdin is None:
             return
-        state = json.dumps({"channels": self._channels, "on": self._on, "frames": hold_frames})
-        self._process.stdin.write(state + "\n")
+        self._process.stdin.write(json.dumps(message) + "\n")
         self._process.stdin.flush()
 
 
 def transmit(port: int, rate_hz: float) -> None:
     """The transmitter: a frame every 1/`rate_hz` s with the latest state read from stdin (a
     JSON line {"channels", "on", "frames"}), until stdin ends (stopped, or its parent gone);
-    a state to hold for `frames` frames goes out in that many before the states after it."""
+    a state to hold for `frames` frames goes out in that many before the states after it.
+    On stdout, a JSON line for each stall once the frame that ended it went out, and after
+    the tick that follows a {"sync": n} line, {"synced": n}."""
     period = 1.0 / rate_hz
     channels, on = neutral_channels(), True
     states: deque[dict[str, Any]] = deque()
     held = 0
     pending = b""
     last_sent: float | None = None
+    sync: int | None = None
     with (
         socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock,
         selectors.DefaultSelector() as sel,
@@ -195,7 +232,12 @@ def transmit(port: int, rate_hz: float) -> None:
                 if not chunk:
                     return
                 *lines, pending = (pending + chunk).split(b"\n")
-                states.extend(json.loads(line) for line in lines)
+                for line in lines:
+                    message = json.loads(line)
+                    if "sync" in message:
+                        sync = message["sync"]
+                    else:
+                        states.append(message)
                 continue
             while held == 0 and states:  # the newest state, or the first one to hold
                 state = states.popleft()
@@ -207,6 +249,9 @@ def transmit(port: int, rate_hz: float) -> None:
                 if last_sent is not None and sent - last_sent >= STALL_S:
                     print(json.dumps({"ended": sent, "gap": sent - last_sent}), flush=True)
             last_sent = sent if on else None  # off is no stall: the radio taken away
+            if sync is not None:  # after the stall this frame ended, if it did
+                print(json.dumps({"synced": sync}), flush=True)
+                sync = None
             next_send += period
             if next_send < time.monotonic() - period:  # the host stalled: no burst of stale frames
                 next_send = time.monotonic()
