@@ -18,14 +18,20 @@ import pytest
 from tests.conftest import run_cli
 from tests.recording.test_rosbag import read_bag
 from tests.waits import wait_for
+from wftool.bench.latency import STEP_SETTLE_S
 from wftool.fsp import Authority, StateDecoder
+from wftool.fsp.clock import EnvelopeClockEstimator
 from wftool.fsp.timed import REFUSED
 from wftool.recording.reader import RecordingReader
 from wftool.sitl.process import free_port_base
 from wftool.sitl.session import Motion, VirtualFcSession
-from wftool.sitl.truth import TrueClock
+from wftool.sitl.truth import Anchor, TrueClock
 from wftool.verify.live import LiveOptions, run_live
 from wftool.verify.monitor import StreamMonitor
+
+RELOCK_S = STEP_SETTLE_S + EnvelopeClockEstimator.LOCK_SPAN_S
+"""The longest verify's clock takes to lock again after a step of the FC clock: the step
+confirmed, then the rate learnt again."""
 
 
 @pytest.fixture
@@ -37,6 +43,17 @@ def fsp_fc(sitl_binary: Path, tmp_path: Path) -> Iterator[VirtualFcSession]:
 def expected(fc: VirtualFcSession) -> tuple[str, ...]:
     """Where verify learns the rate to expect: the FC's setting and its MSP port."""
     return ("--fsp-rate", str(fc.rate_hz), "--fc", fc.msp_url)
+
+
+def settling(fc: VirtualFcSession, ended: float) -> list[Anchor]:
+    """The virtual FC's re-anchors within `RELOCK_S` before host time `ended`: its clock stood
+    still while its host stalled it (more than 50 ms), then went on from there, which the OBC
+    sees as a step of the FC clock (its log says when). A clock that followed it may not have
+    locked again by `ended`. A board's clock does not step."""
+    anchors = TrueClock(fc.fc.log_path).anchors
+    return [
+        a for a in anchors if a.reason == "host-lag" and a.monotonic_ns / 1e9 > ended - RELOCK_S
+    ]
 
 
 def verify_json(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, dict, str]:
@@ -52,6 +69,7 @@ def test_stream_passes_with_no_errors_no_loss_and_replays_identically(
         capsys, "verify", "--stream", "--port", fsp_fc.fsp_url, "--duration", "8",
         "--max-loss", "0", "--max-fc-drops", "0", *expected(fsp_fc), "--record", str(recording),
     )  # fmt: skip
+    ended = time.monotonic()
     assert code == 0, err
     assert live["verdict"]["passed"]
     assert live["expected_rate_hz"] == pytest.approx(fsp_fc.expected_rate_hz)
@@ -63,7 +81,9 @@ def test_stream_passes_with_no_errors_no_loss_and_replays_identically(
     assert live["frames"] > 500
     # the rate the OBC received is the rate the FC captured at
     assert live["frame_rate_hz"] == pytest.approx(live["source_rate_hz"], rel=0.05)
-    assert live["clock"]["locked"] and abs(live["clock"]["rate_ppm"]) < 2000
+    clock = live["clock"]
+    assert abs(clock["rate_ppm"]) < 2000
+    assert clock["locked"] or settling(fsp_fc, ended), clock
 
     code, replayed, _ = verify_json(
         capsys, "replay", str(recording), "--max-loss", "0", "--max-fc-drops", "0"
@@ -120,12 +140,14 @@ def test_sitl_killed_and_restarted_mid_run_is_survived(fsp_fc: VirtualFcSession)
     time.sleep(2)
     fsp_fc.fc.start()  # ... and comes back with its saved configuration
     thread.join(30)
+    ended = time.monotonic()
     summary = result["summary"]
     assert before > 100
     assert summary.reconnects == 1
     assert summary.frames > before + 100  # streaming again after the restart
     assert summary.lost_frames == 0 and summary.errors == 0
-    assert summary.clock is not None and summary.clock.locked  # re-aligned on the new connection
+    assert summary.clock is not None  # re-aligned on the new connection:
+    assert summary.clock.locked or settling(fsp_fc, ended), summary.clock
 
 
 def test_sitl_time_reply_verify_shows_round_trips_and_the_offset_uncertainty(
