@@ -30,7 +30,8 @@ def test_the_fc_takes_a_radio_frame_no_sooner_than_it_arrived(
     """The host stops the FC; meanwhile the radio moves AUX3, and its frame waits in the
     socket. The FC, running again, is behind the wall clock: it takes the frame once its clock
     has reached the frame's arrival, so the first FSP frame showing the move was sampled after
-    it (taken on arrival, it was sampled at the FC time the host stopped the FC: ~10 ms before)."""
+    it (upstream's RC thread, taking it when it got to run, had it sampled at the FC time the
+    host stopped the FC: ~10 ms before)."""
     session = VirtualFcSession(sitl_binary, tmp_path, port_base=None, pilot=True)
     moves: list[tuple[float, int]] = []
     with session, FspReader(session.fsp_url) as reader:
