@@ -45,15 +45,17 @@ def expected(fc: VirtualFcSession) -> tuple[str, ...]:
     return ("--fsp-rate", str(fc.rate_hz), "--fc", fc.msp_url)
 
 
+def re_anchors(log_path: Path) -> list[Anchor]:
+    """The virtual FC's re-anchors (its log): its clock stood still while its host stalled it
+    (more than 50 ms), then went on from there, which the OBC sees as a step of the FC clock.
+    A board's clock does not step."""
+    return [a for a in TrueClock(log_path).anchors if a.reason == "host-lag"]
+
+
 def settling(fc: VirtualFcSession, ended: float) -> list[Anchor]:
-    """The virtual FC's re-anchors within `RELOCK_S` before host time `ended`: its clock stood
-    still while its host stalled it (more than 50 ms), then went on from there, which the OBC
-    sees as a step of the FC clock (its log says when). A clock that followed it may not have
-    locked again by `ended`. A board's clock does not step."""
-    anchors = TrueClock(fc.fc.log_path).anchors
-    return [
-        a for a in anchors if a.reason == "host-lag" and a.monotonic_ns / 1e9 > ended - RELOCK_S
-    ]
+    """The virtual FC's re-anchors within `RELOCK_S` before host time `ended`: a clock that
+    followed it may not have locked again by then."""
+    return [a for a in re_anchors(fc.fc.log_path) if a.monotonic_ns / 1e9 > ended - RELOCK_S]
 
 
 def verify_json(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, dict, str]:
@@ -238,8 +240,7 @@ def test_sitl_verify_with_timed_commands_reports_when_they_acted(
         "--uplink-rate", "100", "--uplink-lead", "20", "--verify", "12", "--record",
         str(recording),
     )  # fmt: skip
-    stalls = [a.fc_us for a in TrueClock(tmp_path / "fc" / "sitl.log").anchors
-              if a.reason == "host-lag"]  # fmt: skip
+    stalls = [a.fc_us for a in re_anchors(tmp_path / "fc" / "sitl.log")]
     refused = refused_at(recording)
     # The virtual FC's clock stands still while its host stalls it (then re-anchors): the
     # OBC's clock runs on, so what it sends then arrives too far ahead by the FC's clock and is
