@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import signal
 import threading
 import time
 from collections.abc import Iterator
@@ -66,12 +67,13 @@ def stamp_of(message: dict) -> int:
 
 @pytest.mark.parametrize("bridge", [{"frame_id": "quad7/fc_body"}], indirect=True)
 def test_every_frame_reaches_a_separate_subscriber(bridge: Ros2Bridge, tmp_path: Path):
-    """A flight fed as reads arrive: every frame on every per-frame topic, in order, stamped
-    with its capture time on the ROS clock, in the frame asked for; battery at 10 Hz; each
-    health snapshot, and each uplink status of the FC it carries once; a subscriber that
-    joins later gets the latest status at once."""
+    """A flight fed as reads arrive, to a subscriber its host stops for 120 of them: every
+    frame on every per-frame topic, in order, stamped with its capture time on the ROS clock,
+    in the frame asked for; battery at 10 Hz; each health snapshot, and each uplink status of
+    the FC it carries once; a subscriber that joins later gets the latest status at once."""
     namespace = bridge.options.namespace
     reads = flight(1500, statuses=True)
+    stop, go = 300, 420  # the subscriber's host stops it: ~720 frames, over a health period
     monitor = StreamMonitor("socket://sim:5762")
     sampler = HealthSampler(monitor)
     out = tmp_path / "received.jsonl"
@@ -79,10 +81,12 @@ def test_every_frame_reaches_a_separate_subscriber(bridge: Ros2Bridge, tmp_path:
     monitor.connected(t0)
     snapshots = []
     topics = {f"{namespace}/{t}": kind for t, kind in STREAM_TYPES.items()}
-    with peers.subscriber(out, 60, topics, matched=True):
+    with peers.subscriber(out, 60, topics, matched=True) as receiving:
         _wait_for_subscribers(bridge)
         t = t0
-        for data in reads:
+        for i, data in enumerate(reads):
+            if i in (stop, go):
+                receiving.send_signal(signal.SIGSTOP if i == stop else signal.SIGCONT)
             t += READ_S  # in real time: three packets of two frames at 953 µs per read
             packets = monitor.feed(data, t)
             health = sampler.sample(packets, t)

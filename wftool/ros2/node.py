@@ -32,6 +32,10 @@ COMMAND_STATUS_TOPIC = "fsp/command_status"
 DEFAULT_DEPTH = 1000
 """Messages a publisher keeps per topic for a reliable subscriber that falls behind (1 s at
 1 kHz; ~0.4 MB a topic); beyond that the oldest are dropped, and the loop never waits."""
+STATUS_DEPTH = 10
+"""Messages a publisher keeps per status topic (1 s at 10 Hz) to repeat to a reliable
+subscriber that missed them, and to send a late joiner (the newest last): the same second
+of slack as the per-frame topics'."""
 DISCOVERY_RANGE = "ROS_AUTOMATIC_DISCOVERY_RANGE"
 FAST_DDS = "rmw_fastrtps_cpp"
 FAST_DDS_PROFILES = ("FASTDDS_DEFAULT_PROFILES_FILE", "FASTRTPS_DEFAULT_PROFILES_FILE")
@@ -168,7 +172,7 @@ class Ros2Bridge:
             reliability=ReliabilityPolicy.RELIABLE,
         )
         latest = QoSProfile(  # a late subscriber gets the latest at once
-            depth=1,
+            depth=STATUS_DEPTH,
             history=HistoryPolicy.KEEP_LAST,
             reliability=ReliabilityPolicy.RELIABLE,
             durability=DurabilityPolicy.TRANSIENT_LOCAL,
