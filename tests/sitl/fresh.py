@@ -2,10 +2,10 @@
 
 The FC takes a command fresh only within `fsp_cmd_timeout_ms` of the one before, by its
 clock (one arriving later only starts a new link), and answers (E2) only the newest fresh
-command of an FSP task run (spec §10, §11). A loaded host delays the test's sends and the
-SITL's TCP reader while FC time goes on: commands a host period apart then reach the FC in
-bursts, and after timeouts. `send_fresh` sends each command alone, once the FC has answered
-the one before or reported (E3, §12) what it made of it, and tells each one's fate.
+command of an FSP task run (spec §10, §11). A loaded host delays the test's sends while FC
+time goes on: commands a host period apart then reach the FC in bursts, and after timeouts.
+`send_fresh` sends each command alone, once the FC has answered the one before or reported
+(E3, §12) what it made of it, and tells each one's fate.
 """
 
 from __future__ import annotations
