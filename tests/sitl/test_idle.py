@@ -1,9 +1,9 @@
 """The virtual FC's TCP UARTs drop a client only when nothing moved either way for the SITL's
 idle timeout: a client that only reads the FSP stream stays connected for good.
 
-Against the patched SITL with its real timeout (upstream's 120 s), so this takes over two
-minutes: an FSP reader that never sends and, on the MSP port, a client that neither sends nor
-is sent anything, in the same window.
+Against the patched SITL with its idle timeout set to IDLE_TIMEOUT_S (`--tcp-idle-timeout`;
+its own is upstream's 120 s): an FSP reader that never sends and, on the MSP port, a client
+that neither sends nor is sent anything, in the same window.
 """
 
 from __future__ import annotations
@@ -17,8 +17,8 @@ from wftool.fsp import StateDecoder
 from wftool.sitl.process import LOOPBACK
 from wftool.sitl.session import VirtualFcSession
 
-IDLE_TIMEOUT_S = 120.0
-"""The SITL's idle timeout of a TCP UART client (serial_tcp.h TCP_IDLE_TIMEOUT_S)."""
+IDLE_TIMEOUT_S = 10
+"""The SITL's idle timeout of a TCP UART client, as the test sets it (`--tcp-idle-timeout`)."""
 MARGIN_S = 8.0
 """Past the timeout: the SITL checks idle clients a few times a second."""
 
@@ -33,7 +33,9 @@ def test_a_client_that_only_reads_stays_connected_past_the_idle_timeout(
     sitl_binary: Path, tmp_path: Path
 ) -> None:
     with (
-        VirtualFcSession(sitl_binary, tmp_path, port_base=None) as fc,
+        VirtualFcSession(
+            sitl_binary, tmp_path, port_base=None, idle_timeout_s=IDLE_TIMEOUT_S
+        ) as fc,
         _connect(fc.fsp_url) as reader,
         _connect(fc.msp_url) as idle,
     ):

@@ -147,9 +147,13 @@ class VirtualFC:
         port_base: int | None = DEFAULT_PORT_BASE,
         ready_timeout: float = 20.0,
         board: VirtualBoard = SITL_BOARD,
+        idle_timeout_s: int | None = None,
     ) -> None:
         self.binary = Path(binary).resolve()
         self.board = board
+        self.idle_timeout_s = idle_timeout_s
+        """How long a UART's client may go without traffic either way before the SITL lets
+        it go (None: the SITL's own, 120 s)."""
         self.workdir = Path(workdir)
         self._fixed_base = port_base is not None
         self._port_base = port_base
@@ -250,6 +254,7 @@ class VirtualFC:
             f"--sim-port-base={self.port_base + SIM_PORT_OFFSET}",
             "--exit-with-parent",
             *self.board.argv(),
+            *([] if self.idle_timeout_s is None else [f"--tcp-idle-timeout={self.idle_timeout_s}"]),
         ]
 
     def _spawn(self) -> subprocess.Popen[bytes]:

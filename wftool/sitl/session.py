@@ -200,6 +200,7 @@ class VirtualFcSession:
         control: Control | None = None,
         configuration: Planner | None = None,
         fsp_uart: int = FSP_UART,
+        idle_timeout_s: int | None = None,
     ) -> None:
         """`time_reply`: the FC answers each command with a time reply (spec §10);
         `port_base=None`: any free ports (see `VirtualFC`); `serial_update_rate_hz` None:
@@ -210,12 +211,14 @@ class VirtualFcSession:
         ARM on that AUX channel of the radio (default AUX1). `control`: who flies as
         `configure fsp` is told (default: from `pilot`, the switch AUX2 at 1700-2100).
         `configuration`: a planner that configures the FC instead of `configure fsp` (a
-        user's backup), with FSP on UART`fsp_uart`."""
+        user's backup), with FSP on UART`fsp_uart`. `idle_timeout_s`: `VirtualFC`'s."""
         if control is not None:
             pilot = isinstance(control, SafetyPilot)
         if arm_switch is not None and not pilot:
             raise ValueError("the OBC alone arms by arming requests: ARM is AUX1, the FC's")
-        self.fc = VirtualFC(binary, workdir, port_base=port_base, board=board)
+        self.fc = VirtualFC(
+            binary, workdir, port_base=port_base, board=board, idle_timeout_s=idle_timeout_s
+        )
         self.msp_baud = msp_baud
         self.workdir = workdir
         self._baud = baud
