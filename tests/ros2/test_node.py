@@ -8,7 +8,7 @@ import os
 import signal
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 import pytest
@@ -24,10 +24,11 @@ from tests.ros2 import peers
 from tests.waits import wait_for
 from wftool.errors import Ros2Error, UsageError
 from wftool.fsp import Authority, AuthorityExit, SensorFrame, UplinkFlag, UplinkStatus
-from wftool.recording.events import new_uplink
+from wftool.recording.events import StreamHealth, new_uplink
 from wftool.ros2.commands import CommandCounts
 from wftool.ros2.node import (
     FAST_DDS_PROFILES,
+    STATUS_DEPTH,
     THIS_HOST_PROFILE,
     Ros2Bridge,
     Ros2Options,
@@ -67,36 +68,13 @@ def stamp_of(message: dict) -> int:
 
 @pytest.mark.parametrize("bridge", [{"frame_id": "quad7/fc_body"}], indirect=True)
 def test_every_frame_reaches_a_separate_subscriber(bridge: Ros2Bridge, tmp_path: Path):
-    """A flight fed as reads arrive, to a subscriber its host stops for 120 of them: every
-    frame on every per-frame topic, in order, stamped with its capture time on the ROS clock,
-    in the frame asked for; battery at 10 Hz; each health snapshot, and each uplink status of
-    the FC it carries once; a subscriber that joins later gets the latest status at once."""
+    """A flight fed as reads arrive: every frame on every per-frame topic, in order, stamped
+    with its capture time on the ROS clock, in the frame asked for; battery at 10 Hz; each
+    health snapshot, and each uplink status of the FC it carries once; a subscriber that
+    joins later gets the latest status at once."""
     namespace = bridge.options.namespace
     reads = flight(1500, statuses=True)
-    stop, go = 300, 420  # the subscriber's host stops it: ~720 frames, over a health period
-    monitor = StreamMonitor("socket://sim:5762")
-    sampler = HealthSampler(monitor)
-    out = tmp_path / "received.jsonl"
-    t0 = time.monotonic()
-    monitor.connected(t0)
-    snapshots = []
-    topics = {f"{namespace}/{t}": kind for t, kind in STREAM_TYPES.items()}
-    with peers.subscriber(out, 60, topics, matched=True) as receiving:
-        _wait_for_subscribers(bridge)
-        t = t0
-        for i, data in enumerate(reads):
-            if i in (stop, go):
-                receiving.send_signal(signal.SIGSTOP if i == stop else signal.SIGCONT)
-            t += READ_S  # in real time: three packets of two frames at 953 µs per read
-            packets = monitor.feed(data, t)
-            health = sampler.sample(packets, t)
-            if health is not None and (not snapshots or health is not snapshots[-1]):
-                snapshots.append(health)
-            bridge.packets(packets, health)
-            time.sleep(max(0.0, t - time.monotonic()))
-    got: dict[str, list[dict]] = {}
-    for line in peers.received(out):
-        got.setdefault(line["topic"][len(namespace) + 1 :], []).append(line["message"])
+    snapshots, got, t0 = _fly(bridge, reads, tmp_path / "received.jsonl", STREAM_TYPES)
     frames = decoded_frames(reads, t0)
     offset = bridge.encoder.wall_offset_ns
     stamps = [offset + int(frame.obc_time * 1e9) for frame in frames]
@@ -115,11 +93,8 @@ def test_every_frame_reaches_a_separate_subscriber(bridge: Ros2Bridge, tmp_path:
     assert [m["frames"] for m in got["fsp/health"]] == [s.frames for s in snapshots]
     status = got["fsp/command_status"]
     assert status and not status[-1]["accepting"] and status[-1]["received"] == 0
-    reports = [new_uplink(s, b) for s, b in zip(snapshots, [None, *snapshots])]
-    expected = [
-        (r.status.tx_time_us, r.status.flags, offset + int(r.t * 1e9)) for r in reports if r
-    ]
     uplink = got["fsp/uplink_status"]
+    expected = _uplink_statuses(snapshots, offset)
     assert [(m["tx_time_us"], flags_of(m), stamp_of(m)) for m in uplink] == expected
     assert len(expected) >= 1500 // STATUS_EVERY // 2 and not uplink[-1]["live"]
 
@@ -127,7 +102,73 @@ def test_every_frame_reaches_a_separate_subscriber(bridge: Ros2Bridge, tmp_path:
     latest = {f"{namespace}/fsp/uplink_status": STREAM_TYPES["fsp/uplink_status"] + "=latest"}
     with peers.subscriber(late, 3.0, latest, matched=True):
         pass
-    assert [line["message"] for line in peers.received(late)] == [uplink[-1]]
+    joined = [line["message"] for line in peers.received(late)]
+    # the latest last, after those of the ones the node keeps before it that the subscriber
+    # (keeping one) took as they came, in order
+    assert joined and joined[-1] == uplink[-1]
+    kept = uplink[-STATUS_DEPTH:]
+    positions = [kept.index(m) if m in kept else None for m in joined]
+    assert None not in positions and positions == sorted(set(positions)), positions
+
+
+def test_a_subscriber_its_host_stops_still_gets_every_status(bridge: Ros2Bridge, tmp_path: Path):
+    """A subscriber to every topic, which its host stops for 120 reads (720 frames, over a
+    health period) mid-flight, still gets each health snapshot and each uplink status: the
+    node keeps STATUS_DEPTH of each to repeat (with the latest alone kept, it lost one in
+    every such stop: the frames had filled what it receives into)."""
+    reads = flight(3000, statuses=True)  # 1000 reads, 0.95 s
+    out = tmp_path / "received.jsonl"
+    snapshots, got, _ = _fly(bridge, reads, out, STREAM_TYPES, stopped=(300, 420))
+    assert [m["frames"] for m in got["fsp/health"]] == [s.frames for s in snapshots]
+    expected = _uplink_statuses(snapshots, bridge.encoder.wall_offset_ns)
+    uplink = got["fsp/uplink_status"]
+    assert [(m["tx_time_us"], flags_of(m), stamp_of(m)) for m in uplink] == expected
+
+
+def _fly(
+    bridge: Ros2Bridge,
+    reads: list[bytes],
+    out: Path,
+    topics: dict[str, str],
+    stopped: tuple[int, int] | None = None,
+) -> tuple[list[StreamHealth], dict[str, list[dict]], float]:
+    """Feed `reads` to `bridge` as they arrive, in real time, with a `subscribe` process on
+    `topics` (name under the node's namespace -> type), which its host stops from read
+    `stopped[0]` to `stopped[1]`: the health snapshots fed, what the subscriber got by
+    topic, and when the flight began."""
+    namespace = bridge.options.namespace
+    monitor = StreamMonitor("socket://sim:5762")
+    sampler = HealthSampler(monitor)
+    t0 = time.monotonic()
+    monitor.connected(t0)
+    snapshots: list[StreamHealth] = []
+    named = {f"{namespace}/{t}": kind for t, kind in topics.items()}
+    stop, go = stopped or (-1, -1)
+    assert go < len(reads), "the subscriber would stay stopped"
+    with peers.subscriber(out, 60, named, matched=True) as receiving:
+        _wait_for_subscribers(bridge, named)
+        t = t0
+        for i, data in enumerate(reads):
+            if i in (stop, go):
+                receiving.send_signal(signal.SIGSTOP if i == stop else signal.SIGCONT)
+            t += READ_S  # in real time: three packets of two frames at 953 µs per read
+            packets = monitor.feed(data, t)
+            health = sampler.sample(packets, t)
+            if health is not None and (not snapshots or health is not snapshots[-1]):
+                snapshots.append(health)
+            bridge.packets(packets, health)
+            time.sleep(max(0.0, t - time.monotonic()))
+    got: dict[str, list[dict]] = {}
+    for line in peers.received(out):
+        got.setdefault(line["topic"][len(namespace) + 1 :], []).append(line["message"])
+    return snapshots, got, t0
+
+
+def _uplink_statuses(snapshots: list[StreamHealth], offset_ns: int) -> list[tuple[int, int, int]]:
+    """The uplink statuses the node publishes for `snapshots`, each once: (tx_time_us, flags,
+    stamp)."""
+    reports = [new_uplink(s, b) for s, b in zip(snapshots, [None, *snapshots])]
+    return [(r.status.tx_time_us, r.status.flags, offset_ns + int(r.t * 1e9)) for r in reports if r]
 
 
 def flags_of(message: dict) -> int:
@@ -145,9 +186,14 @@ def _assert_imu(messages: list[dict], frames: list[SensorFrame]) -> None:
         assert_imu_matches(Message(message), frame)
 
 
-def _wait_for_subscribers(bridge: Ros2Bridge, timeout_s: float = 10.0) -> None:
+def _wait_for_subscribers(
+    bridge: Ros2Bridge, topics: Iterable[str], timeout_s: float = 10.0
+) -> None:
+    """Until the node's publisher on each of `topics` (full names) has a subscriber."""
     deadline = time.monotonic() + timeout_s
-    ours = [p for p in bridge._node.publishers if p.topic_name not in _ROS_OWN]
+    names = set(topics)
+    ours = [p for p in bridge._node.publishers if p.topic_name in names]
+    assert len(ours) == len(names), f"no publisher on {names - {p.topic_name for p in ours}}"
     while any(p.get_subscription_count() == 0 for p in ours):
         assert time.monotonic() < deadline, "the subscriber never matched"
         time.sleep(0.02)
