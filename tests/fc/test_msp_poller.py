@@ -159,8 +159,11 @@ def test_record_msp_cli_and_bad_input(
     virtual_fc: VirtualFC, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     out = tmp_path / "msp"
+    # RAW_IMU alone: under the paper's schedule a fresh virtual FC (serial task at 100 Hz, one
+    # command a run) answers RC and ATTITUDE first, and RAW_IMU 1-35 times in 2 s
     code, stdout, stderr = run_cli(
         capsys, "record", "msp", "--port", virtual_fc.url, "--duration", "2", "--out", str(out),
+        "--schedule", "RAW_IMU=100",
     )  # fmt: skip
     assert code == 0, stderr
     assert "RAW_IMU" in stdout and "commands/s" in stdout and "stamped on reception" in stderr
