@@ -49,6 +49,9 @@ LEAD_S = 0.020
 """How far ahead of its instant the OBC sends a command: more than its link's worst delay, as
 an OBC should lead. Here the link is the host's scheduler, which a loaded host stretches to
 several ms (with 5 ms, 38 of 300 commands came late in a full suite run on a loaded host)."""
+APART_S = 1e-5
+"""Commands written together are stamped this far apart: a `tx_time_us` ahead whatever the
+rounding."""
 
 
 class TimedObc:
@@ -111,11 +114,17 @@ class TimedObc:
         """A timed command due `after_us` after FC time `since_us` (default: the newest
         frame's): in the FC's own clock, whatever the OBC's clock makes of it (a loaded host's
         virtual FC re-anchors its lockstep clock, a step the OBC's clock learns only later)."""
-        since_us = self.latest_fc_us() if since_us is None else since_us
-        at_us = (since_us + after_us) & 0xFFFFFFFF
-        packet = self.reader.sender.next((roll, 1500, 1500, 1000, 1000, 1000), at_us=at_us)
+        packet = self.at_fc(roll, after_us, since_us)
         self.reader.port.write(encode_command(packet))
         return packet
+
+    def at_fc(
+        self, roll: int, after_us: int, since_us: int | None = None, now: float | None = None
+    ) -> CommandPacket:
+        """`send_at_fc`'s command, not sent (stamped `now`, default: now)."""
+        since_us = self.latest_fc_us() if since_us is None else since_us
+        at_us = (since_us + after_us) & 0xFFFFFFFF
+        return self.reader.sender.next((roll, 1500, 1500, 1000, 1000, 1000), now, at_us=at_us)
 
     def pump_until(self, condition: Callable[[], bool], never_s: float = NEVER_S) -> bool:
         """Read until `condition()` holds: whether it did within `never_s` (a bound on
@@ -278,15 +287,16 @@ def test_late_expired_and_too_far_commands_are_counted(obc: TimedObc) -> None:
     """Late by less than the command timeout (50 ms): applied at once; by the timeout or
     more: expired on arrival, never applied (spec §13); due the timeout or more ahead:
     refused."""
-    stale = obc.send_at_fc(1304, -80_000)
-    obc.pump(0.01)
-    far = obc.send_at_fc(1302, 200_000)  # beyond the 50 ms timeout
-    obc.pump(0.01)
-    # The late one acts at once and is the OBC's newest fresh command: the one due after it
-    # goes out with it, well inside the 50 ms the FC then waits for the next (one due after
-    # the OBC timed out is expired, as a loaded host's delay between them once made it).
-    past = obc.send_at_fc(1301, -20_000)
-    gone = obc.send_at_fc(1303, round(LEAD_S * 1e6))
+    # All in one write, after an immediate command that opens a link if the one `lock()` used
+    # timed out: a loaded host that held the test between writes for the command timeout
+    # (50 ms) had the next taken only as a new link's first, and reported on never (spec §11).
+    now = time.monotonic()  # each stamped APART_S after the one before: ahead of it (spec §11)
+    opener = obc.reader.sender.next((1500, 1500, 1500, 1000, 1000, 1000), now)
+    stale = obc.at_fc(1304, -80_000, now=now + APART_S)
+    far = obc.at_fc(1302, 200_000, now=now + 2 * APART_S)  # beyond the 50 ms timeout
+    past = obc.at_fc(1301, -20_000, now=now + 3 * APART_S)  # acts at once
+    gone = obc.at_fc(1303, round(LEAD_S * 1e6), now=now + 4 * APART_S)
+    obc.reader.port.write(b"".join(encode_command(p) for p in (opener, stale, far, past, gone)))
     obc.wait_reports([past, stale, far, gone])
     obc.pump(0.05)
     late, expired, refused, applied = (obc.reports[p.seq] for p in (past, stale, far, gone))
