@@ -5,6 +5,7 @@ were sent, here), judged against the SITL's true clock (`TrueClock`, the lockste
 from __future__ import annotations
 
 import ctypes
+import functools
 import os
 import threading
 import time
@@ -37,10 +38,15 @@ _WALL = 0x40000000
 _SETTLE_S = 0.001
 
 
-def _ptrace(request: int, tid: int) -> int:
+@functools.cache
+def _libc() -> ctypes.CDLL:
     libc = ctypes.CDLL(None, use_errno=True)
     libc.ptrace.argtypes = [ctypes.c_long, ctypes.c_long, ctypes.c_void_p, ctypes.c_void_p]
-    return int(libc.ptrace(request, tid, None, None))
+    return libc
+
+
+def _ptrace(request: int, tid: int) -> int:
+    return int(_libc().ptrace(request, tid, None, None))
 
 
 def _in_syscall(pid: int, tid: int) -> bool:
