@@ -5,6 +5,7 @@ fails naming the lines where the board hands the sticks back too late."""
 from __future__ import annotations
 
 import re
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -38,10 +39,16 @@ def test_bad_options_are_one_line_and_exit_2(
 
 @pytest.mark.parametrize("setup", [(), ("--obc-only", "--arm")], ids=["safety-pilot", "obc-alone"])
 def test_what_configure_fsp_leaves_passes(
-    sitl_binary: Path, capsys: pytest.CaptureFixture[str], setup: tuple[str, ...]
+    sitl_binary: Path,
+    capsys: pytest.CaptureFixture[str],
+    setup: tuple[str, ...],
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
 ) -> None:
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
     code, out, err = run_cli(capsys, "preflight", "--sitl", "--binary", str(sitl_binary), *setup)
     assert code == 0, out + err
+    assert list(tmp_path.iterdir()) == []  # the virtual FC's scratch directory is gone
     assert "configured by `configure fsp --uart 2" in out
     [verdict] = [line for line in out.splitlines() if " lines passed" in line]
     passed, total = map(int, re.match(r"(\d+) of (\d+) lines passed", verdict).groups())

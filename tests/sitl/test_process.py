@@ -11,6 +11,7 @@ import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from collections.abc import Iterator
@@ -32,6 +33,7 @@ from wftool.sitl.process import (
     VirtualFC,
     free_port_base,
     ports_in_use,
+    scratch_workdir,
     uart_url,
 )
 from wftool.sitl.session import FSP_UART, Motion, VirtualFcSession
@@ -395,6 +397,24 @@ def test_ports_taken_after_they_were_found_free_are_traded_for_others(
 def test_missing_binary_is_a_one_line_error(tmp_path: Path) -> None:
     with pytest.raises(SitlError, match="cannot run SITL binary"):
         VirtualFC(tmp_path / "nope", tmp_path, port_base=None).start()
+
+
+def test_a_scratch_workdir_goes_after_a_clean_run_and_stays_after_an_error(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    with scratch_workdir(None, "wftool-sitl-") as clean:
+        (clean / "sitl.log").write_text("ran")
+    with pytest.raises(SitlError), scratch_workdir(None, "wftool-sitl-") as failed:
+        (failed / "sitl.log").write_text("crashed")
+        raise SitlError(f"see {failed / 'sitl.log'}")
+    given = tmp_path / "given"
+    given.mkdir()
+    with scratch_workdir(given, "wftool-sitl-") as used:
+        (used / "eeprom.bin").write_bytes(b"kept")
+    assert clean.parent == failed.parent == tmp_path and not clean.exists()
+    assert (failed / "sitl.log").read_text() == "crashed"
+    assert used == given and (given / "eeprom.bin").read_bytes() == b"kept"
 
 
 @pytest.mark.parametrize("pid", [1, 4242, 65521, 99991])

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import selectors
 import sys
-import tempfile
 import threading
 from collections.abc import Callable, Sequence
 from functools import partial
@@ -29,6 +28,7 @@ from wftool.sitl.process import (
     MAX_PORT_BASE,
     SIM_PORT_OFFSET,
     VirtualBoard,
+    scratch_workdir,
 )
 from wftool.sitl.radio import EngagingPilot
 from wftool.verify.session import VerifySession
@@ -52,7 +52,8 @@ rate_option = click.option(
 @click.option(
     "--workdir",
     type=click.Path(file_okay=False, path_type=Path),
-    help="Where SITL keeps eeprom.bin [a new scratch directory].",
+    help="Where SITL keeps eeprom.bin and its log [a temporary directory, removed at the end "
+    "unless the run failed].",
 )
 @rate_option
 @click.option(
@@ -164,72 +165,74 @@ def sitl(
         options["clock"] = options["clock"] or "twoway"
     if binary is None:
         binary = build_sitl(project_dir)
-    workdir = workdir or Path(tempfile.mkdtemp(prefix="wftool-sitl-"))
-    board = VirtualBoard(gyro_hz, gyro_clock_hz, uart_pacing)
-    serial_update_rate_hz = None
-    if paper:
-        from wftool.analysis.setup import PAPER_BOARD, PAPER_MSP_BAUD, SERIAL_RATE_HZ
+    with scratch_workdir(workdir, "wftool-sitl-") as workdir:
+        board = VirtualBoard(gyro_hz, gyro_clock_hz, uart_pacing)
+        serial_update_rate_hz = None
+        if paper:
+            from wftool.analysis.setup import PAPER_BOARD, PAPER_MSP_BAUD, SERIAL_RATE_HZ
 
-        board = VirtualBoard(
-            gyro_hz or PAPER_BOARD.gyro_hz,
-            gyro_clock_hz or PAPER_BOARD.gyro_clock_hz,
-            True,
-        )
-        msp_baud = msp_baud or PAPER_MSP_BAUD
-        serial_update_rate_hz = SERIAL_RATE_HZ
-    session = VirtualFcSession(
-        binary, workdir, rate_hz=rate_hz, motion=Motion() if motion else None,
-        port_base=port_base or None, time_reply=time_reply, board=board, msp_baud=msp_baud,
-        serial_update_rate_hz=serial_update_rate_hz, pilot=pilot,
-    )  # fmt: skip
-    err.print(shown(f"starting the virtual FC in {workdir} …"))
-    with session:
-        err.print(Text.assemble("MSP/CLI  ", shown(session.msp_url, "bold")))
-        replies = ", fsp_time_reply ON" if time_reply else ""
-        err.print(
-            Text.assemble(
-                "FSP      ", shown(session.fsp_url, "bold"), f"  (fsp_rate_hz {rate_hz}{replies})"
+            board = VirtualBoard(
+                gyro_hz or PAPER_BOARD.gyro_hz,
+                gyro_clock_hz or PAPER_BOARD.gyro_clock_hz,
+                True,
             )
-        )
-        sinks: list[Sink] = []
-        pilot_flips: Callable[[threading.Event], None] | None = None
-        if session.radio is not None:
-            engaging = EngagingPilot(session.radio, PILOT_OVERRIDE, say=err.print)
-            sinks.append(PilotWatch(engaging))
-            pilot_flips = partial(flip_on_enter, engaging)
+            msp_baud = msp_baud or PAPER_MSP_BAUD
+            serial_update_rate_hz = SERIAL_RATE_HZ
+        session = VirtualFcSession(
+            binary, workdir, rate_hz=rate_hz, motion=Motion() if motion else None,
+            port_base=port_base or None, time_reply=time_reply, board=board, msp_baud=msp_baud,
+            serial_update_rate_hz=serial_update_rate_hz, pilot=pilot,
+        )  # fmt: skip
+        err.print(shown(f"starting the virtual FC in {workdir} …"))
+        with session:
+            err.print(Text.assemble("MSP/CLI  ", shown(session.msp_url, "bold")))
+            replies = ", fsp_time_reply ON" if time_reply else ""
             err.print(
-                f"pilot    the simulated radio on UDP {session.fc.sim_rc_port}: ARM on "
-                f"AUX{PILOT_ARM} (off), override on AUX{PILOT_OVERRIDE} (off: the pilot turns it "
-                "on when the OBC is ready)"
+                Text.assemble(
+                    "FSP      ",
+                    shown(session.fsp_url, "bold"),
+                    f"  (fsp_rate_hz {rate_hz}{replies})",
+                )
             )
-        if options["expected_rate"] is None:
-            options["expected_rate"] = session.expected_rate_hz
-        if ros2:
-            bridge = node_from(**options)
-            sinks.append(bridge)
-            options["commander"] = bridge if options["accept_commands"] else None
-        options["sinks"] = sinks
-        if verify_s is not None:
-            verify_stream(session.fsp_url, DEFAULT_BAUDRATE, verify_s, **options)
-            return
-        stream = serving_stream(session.fsp_url, **options)
-        if stream is None and pilot_flips is not None:
-            err.print(
-                "pilot    your OBC reads the FSP port, so the pilot cannot see when it is ready: "
-                "press Enter to turn the override switch off and on (once its uplink status "
-                "says READY)"
-            )
-        err.print("running; Ctrl-C stops it")
-        try:
-            session.serve(
-                on_reset=lambda: err.print("the FC reset itself; starting it again"),
-                alongside=(lambda stop: stream.run(stop=stop)) if stream else pilot_flips,
-            )
-        except KeyboardInterrupt:
-            err.print("stopping")
-        finally:
-            if stream is not None:
-                stream.close()
+            sinks: list[Sink] = []
+            pilot_flips: Callable[[threading.Event], None] | None = None
+            if session.radio is not None:
+                engaging = EngagingPilot(session.radio, PILOT_OVERRIDE, say=err.print)
+                sinks.append(PilotWatch(engaging))
+                pilot_flips = partial(flip_on_enter, engaging)
+                err.print(
+                    f"pilot    the simulated radio on UDP {session.fc.sim_rc_port}: ARM on "
+                    f"AUX{PILOT_ARM} (off), override on AUX{PILOT_OVERRIDE} (off: the pilot turns "
+                    "it on when the OBC is ready)"
+                )
+            if options["expected_rate"] is None:
+                options["expected_rate"] = session.expected_rate_hz
+            if ros2:
+                bridge = node_from(**options)
+                sinks.append(bridge)
+                options["commander"] = bridge if options["accept_commands"] else None
+            options["sinks"] = sinks
+            if verify_s is not None:
+                verify_stream(session.fsp_url, DEFAULT_BAUDRATE, verify_s, **options)
+                return
+            stream = serving_stream(session.fsp_url, **options)
+            if stream is None and pilot_flips is not None:
+                err.print(
+                    "pilot    your OBC reads the FSP port, so the pilot cannot see when it is "
+                    "ready: press Enter to turn the override switch off and on (once its uplink "
+                    "status says READY)"
+                )
+            err.print("running; Ctrl-C stops it")
+            try:
+                session.serve(
+                    on_reset=lambda: err.print("the FC reset itself; starting it again"),
+                    alongside=(lambda stop: stream.run(stop=stop)) if stream else pilot_flips,
+                )
+            except KeyboardInterrupt:
+                err.print("stopping")
+            finally:
+                if stream is not None:
+                    stream.close()
 
 
 class PilotWatch:

@@ -6,7 +6,6 @@ what is checked is that configuration, not a fresh FC's. The simulated radio is 
 from __future__ import annotations
 
 import contextlib
-import tempfile
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
 from functools import partial
@@ -29,7 +28,7 @@ from wftool.preflight.pilot import NoPilot, Pilot, RadioPilot
 from wftool.preflight.run import Preflight
 from wftool.preflight.settings import BoardSettings
 from wftool.progress import Log, quiet
-from wftool.sitl.process import DEFAULT_PORT_BASE
+from wftool.sitl.process import DEFAULT_PORT_BASE, scratch_workdir
 from wftool.sitl.radio import SimulatedRadio
 from wftool.sitl.session import FSP_UART, MSP_UART, Motion, VirtualFcSession
 
@@ -155,38 +154,38 @@ def on_virtual_fc(
     says which; the FC runs until the block ends. `control` None: a safety pilot, the switch
     AUX2 on at 1700-2100 µs (`configure fsp`'s defaults)."""
     control = control or SafetyPilot()
-    workdir = workdir or Path(tempfile.mkdtemp(prefix="wftool-preflight-"))
-    if backup is not None:
-        session = VirtualFcSession(
-            binary, workdir, motion=Motion(), port_base=port_base, pilot=not backup.obc_alone,
-            configuration=backup.planner, fsp_uart=backup.fsp_uart,
-        )  # fmt: skip
-        subject = f"the configuration of {backup.path}"
-    else:
-        session = VirtualFcSession(
-            binary, workdir, motion=Motion(), port_base=port_base, control=control,
-            cmd_timeout_ms=cmd_timeout_ms, time_reply=True,
-        )  # fmt: skip
-        subject = (
-            f"configured by `configure fsp --uart {FSP_UART} "
-            f"{configure_fsp_options(control, cmd_timeout_ms)}`, the planner a board gets"
-        )
-    log(f"starting the virtual FC in {workdir}")
-    with session:
-        lines = [f"virtual FC ({binary}), {subject}"]
-        if backup is not None and backup.skipped:
-            lines.append(f"not loaded (hardware, or not in SITL): {', '.join(backup.skipped)}")
-        virtual = ["fsp_time_reply ON (FC-clock timings)", "runaway_takeoff_prevention OFF"]
-        if session.radio is not None:
-            virtual.append("the simulated radio the pilot's")
-            if backup is None:
-                virtual.append("ARM on its AUX1")
-        lines.append(f"for the virtual FC: {', '.join(virtual)}")
-        yield Preflight(
-            session.fc, session.fsp_url, partial(_pilot, session.radio), subject=lines, log=log,
-            closing=partial(session.fc.close_client, session.fsp_uart), limit_ms=limit_ms,
-            arm=arm, settings_only=settings_only, only=only, trials=trials,
-        )  # fmt: skip
+    with scratch_workdir(workdir, "wftool-preflight-") as workdir:
+        if backup is not None:
+            session = VirtualFcSession(
+                binary, workdir, motion=Motion(), port_base=port_base, pilot=not backup.obc_alone,
+                configuration=backup.planner, fsp_uart=backup.fsp_uart,
+            )  # fmt: skip
+            subject = f"the configuration of {backup.path}"
+        else:
+            session = VirtualFcSession(
+                binary, workdir, motion=Motion(), port_base=port_base, control=control,
+                cmd_timeout_ms=cmd_timeout_ms, time_reply=True,
+            )  # fmt: skip
+            subject = (
+                f"configured by `configure fsp --uart {FSP_UART} "
+                f"{configure_fsp_options(control, cmd_timeout_ms)}`, the planner a board gets"
+            )
+        log(f"starting the virtual FC in {workdir}")
+        with session:
+            lines = [f"virtual FC ({binary}), {subject}"]
+            if backup is not None and backup.skipped:
+                lines.append(f"not loaded (hardware, or not in SITL): {', '.join(backup.skipped)}")
+            virtual = ["fsp_time_reply ON (FC-clock timings)", "runaway_takeoff_prevention OFF"]
+            if session.radio is not None:
+                virtual.append("the simulated radio the pilot's")
+                if backup is None:
+                    virtual.append("ARM on its AUX1")
+            lines.append(f"for the virtual FC: {', '.join(virtual)}")
+            yield Preflight(
+                session.fc, session.fsp_url, partial(_pilot, session.radio), subject=lines, log=log,
+                closing=partial(session.fc.close_client, session.fsp_uart), limit_ms=limit_ms,
+                arm=arm, settings_only=settings_only, only=only, trials=trials,
+            )  # fmt: skip
 
 
 def _pilot(radio: SimulatedRadio | None, settings: BoardSettings) -> Pilot:

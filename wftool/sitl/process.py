@@ -7,12 +7,15 @@ when MSP answers, stopped with wftool however wftool ends (the SITL facts: docs/
 
 from __future__ import annotations
 
+import contextlib
 import os
+import shutil
 import signal
 import socket
 import subprocess
+import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -129,6 +132,18 @@ def _ended(process: subprocess.Popen[bytes], within: float) -> int | None:
         return process.wait(within)
     except subprocess.TimeoutExpired:
         return None
+
+
+@contextlib.contextmanager
+def scratch_workdir(workdir: Path | None, prefix: str) -> Iterator[Path]:
+    """`workdir` as it is; or, None, a new temporary directory (named from `prefix`), removed
+    when the block ends without an error and kept after one, whose sitl.log it names."""
+    if workdir is not None:
+        yield workdir
+        return
+    scratch = Path(tempfile.mkdtemp(prefix=prefix))
+    yield scratch
+    shutil.rmtree(scratch, ignore_errors=True)
 
 
 class VirtualFC:
