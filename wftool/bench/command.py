@@ -36,6 +36,10 @@ RATES_HZ = (100.0, 500.0)
 LEAD_S = 0.005
 """How far ahead of its time a timed command is sent: more than the uplink's delay (the
 FSP task's period, the UART, the OBC's own loop) ever is on the virtual FC."""
+MISPLACED_US = 1000
+"""A timed command's FC time this far or more after the true FC time of the instant meant is
+misplaced: the two-way clock errs by tens of µs (its uncertainty), a step it has not seen by
+the step (a re-anchor: 50 ms or more)."""
 IMMEDIATE = "immediate"
 TIMED = "timed"
 READ_S = 0.0005
@@ -98,6 +102,10 @@ class CommandRow:
     expired_after_us: float | None = None
     """Timed, the expired ones: the least of the FC time it refused one at − its time, by
     the FC's account (expired on arrival: at least the command timeout)."""
+    misplaced: int = 0
+    """Timed, of `refused`: too far ahead because the OBC's clock put them `MISPLACED_US` or
+    more after the FC time of the instant meant, by the true clock: an FC clock step it had
+    not seen yet (the SITL re-anchored after its host fell behind)."""
 
 
 @dataclass(frozen=True)
@@ -378,6 +386,7 @@ def _row(
     answered = 0
     latest = -math.inf
     expired_after = math.inf
+    misplaced = 0
     for record in sent:
         key = (record.packet.seq, record.packet.tx_time_us)
         if mode == TIMED:
@@ -388,6 +397,9 @@ def _row(
             outcomes[CommandOutcome(report.outcome)] += 1
             if report.outcome == CommandOutcome.EXPIRED:
                 expired_after = min(expired_after, float(report.after_us))
+            if report.outcome == CommandOutcome.TOO_FAR:
+                placed = truth.micros64(report.at_us, end) - truth.fc_us_at(record.intended)
+                misplaced += placed >= MISPLACED_US
             if not report.applied or report.event_time_us is None or report.delay_us is None:
                 continue
             applied_us = report.event_time_us
@@ -422,4 +434,5 @@ def _row(
         latest_us=latest if math.isfinite(latest) else None,
         expired=outcomes[CommandOutcome.EXPIRED],
         expired_after_us=expired_after if math.isfinite(expired_after) else None,
+        misplaced=misplaced,
     )

@@ -429,8 +429,10 @@ def bench_command(
         else f"{result.reanchors} re-anchors"
     )
     unlocked = sum(row.unlocked for row in result.rows)
+    misplaced = sum(row.misplaced for row in result.rows)
     out.print(
-        f"{host}; timed commands not sent while the clock was unlocked: {unlocked}; "
+        f"{host}; timed commands not sent while the clock was unlocked: {unlocked}, "
+        f"refused as placed across an FC clock step not yet seen: {misplaced}; "
         f"the FC's books (E3): {result.accepted:,} fresh, {result.stale:,} stale of "
         f"{result.packets:,} commands; reports lost: {result.lost_reports}"
     )
