@@ -26,6 +26,7 @@ from wftool.errors import PortInUseError, SitlError
 from wftool.fc.msp import Cmd, MspClient, RebootMode, encode_request
 from wftool.fsp import FspReader, StatePacket
 from wftool.fsp.schedule import lockstep_interval
+from wftool.link import transport
 from wftool.sitl.process import (
     LOOPBACK,
     MAX_PORT_BASE,
@@ -73,6 +74,18 @@ def test_start_answers_msp_and_stop_leaves_no_process(sitl_binary: Path, tmp_pat
     assert not _alive(pid)
     assert f"bind port {fc.port_base + 1} for UART1".encode() in fc.log_path.read_bytes()
     assert not ports_in_use(fc.port_base)
+
+
+def test_start_returns_with_uart1_let_go(
+    sitl_binary: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Starting checks the loop over MSP on UART1; it returns once the FC has let go of that
+    link, though the port's close does not wait for the FC (as after its 0.3 s on a loaded
+    host): a client connecting at once is served, not dropped."""
+    monkeypatch.setattr(transport, "RELEASE_TIMEOUT_S", 0.0)
+    with VirtualFC(sitl_binary, tmp_path, port_base=None) as fc:
+        log = fc.log_path.read_bytes()[fc.log_offset :]
+        assert log.count(b"[NEW]UART1") == log.count(b"[CLS]UART1") == 2  # the probe, MSP
 
 
 def test_stop_kills_a_process_that_ignores_sigterm(sitl_binary: Path, tmp_path: Path) -> None:

@@ -313,13 +313,17 @@ class VirtualFC:
         return ""
 
     def _loop_problem(self) -> str:
-        """Why the flight loop is not running, or "" once MSP reports a PID cycle time."""
+        """Why the flight loop is not running, or "" once MSP reports a PID cycle time; UART1
+        let go of again either way, so the caller's first link is the one it serves."""
         deadline = time.monotonic() + LOOP_TIMEOUT_S
-        with MspClient.open(self.url) as msp:
+        msp = MspClient.open(self.url)
+        try:
             while time.monotonic() < deadline:
                 if msp.pid_cycle_us():
                     return ""
                 time.sleep(0.05)
+        finally:
+            self.close_client(1, msp.close)
         return f"SITL's PID loop did not start within {LOOP_TIMEOUT_S:.0f} s"
 
     def close_client(self, uart: int, close: Callable[[], object], timeout: float = 2.0) -> bool:
