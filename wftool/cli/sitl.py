@@ -222,8 +222,8 @@ def sitl(
                     "ready: press Enter to turn the override switch off and on (once its uplink "
                     "status says READY)"
                 )
-            err.print("running; Ctrl-C stops it")
-            try:
+            try:  # from the line on: a Ctrl-C the moment it shows stops it as any later one
+                err.print("running; Ctrl-C stops it")
                 session.serve(
                     on_reset=lambda: err.print("the FC reset itself; starting it again"),
                     alongside=(lambda stop: stream.run(stop=stop)) if stream else pilot_flips,
