@@ -280,14 +280,17 @@ def test_sitl_verify_with_timed_commands_sent_too_late_fails_naming_them(
     sitl_binary: Path, capsys: pytest.CaptureFixture[str], tmp_path: Path
 ) -> None:
     """Lead 0: each timed command is due when it is sent, so the FC takes it after its time
-    and applies it late. The run fails, and says so: the late commands, how many, how late."""
+    and applies it late. The run fails, and says so: the late commands, how many, how late.
+    Timed commands go out once the clock locks (`LOCK_SPAN_S`, 4 s); the run is long enough
+    for a host stall's re-anchor and the lock again after it (`RELOCK_S`), as its sibling's."""
     code, live, err = verify_json(
         capsys, "sitl", "--binary", str(sitl_binary), "--workdir", str(tmp_path / "fc"),
         "--port-base", str(free_port_base()), "--no-motion", "--uplink", "--uplink-lead", "0",
-        "--verify", "6",
+        "--verify", "12",
     )  # fmt: skip
     assert code == 1, err
     checks = {check["name"]: check for check in live["verdict"]["checks"]}
+    assert "timed commands late" in checks, (err, re_anchors(tmp_path / "fc" / "sitl.log"))
     late = checks["timed commands late"]
     assert not late["passed"] and late["value"] > 90, late
     assert live["timed"]["outcomes"]["LATE"] >= 20  # 50 Hz once the clock locked
