@@ -44,24 +44,6 @@ def test_maps_fc_time_through_the_latest_anchor_before_it(tmp_path: Path) -> Non
     assert clock.monotonic(4_000_000) == pytest.approx(13.6, abs=1e-12)
 
 
-def test_the_fc_time_reached_at_a_host_instant_stands_while_the_host_ran_it_late(
-    tmp_path: Path,
-) -> None:
-    log = write(
-        tmp_path / "sitl.log",
-        anchor(500_000, 10_000_000_000),
-        anchor(3_000_000, 12_600_000_000, "host-lag"),  # due at 12.5 s, reached at 12.6 s
-    )
-    clock = TrueClock(log)
-    assert clock.fc_us_at(10.0) == 500_000
-    assert clock.fc_us_at(11.25) == 1_750_000
-    assert clock.fc_us_at(12.55) == 3_000_000  # stood at the re-anchor's time
-    assert clock.fc_us_at(12.6) == 3_000_000
-    assert clock.fc_us_at(13.6) == 4_000_000
-    for fc_us in (500_000, 1_750_000, 3_000_000, 4_000_000):
-        assert clock.fc_us_at(clock.monotonic(fc_us)) == fc_us
-
-
 def test_a_line_being_written_waits_and_refresh_picks_up_new_anchors(tmp_path: Path) -> None:
     log = write(tmp_path / "sitl.log", anchor(500_000, 10_000_000_000))
     half = anchor(2_000_000, 11_600_000_000, "host-lag")

@@ -37,7 +37,7 @@ LEAD_S = 0.005
 """How far ahead of its time a timed command is sent: more than the uplink's delay (the
 FSP task's period, the UART, the OBC's own loop) ever is on the virtual FC."""
 MISPLACED_US = 1000
-"""A timed command's FC time this far or more after the true FC time of the instant meant is
+"""A timed command whose FC time is due this far or more after the instant meant (true clock) is
 misplaced: the two-way clock errs by tens of µs (its uncertainty), a step it has not seen by
 the step (a re-anchor: 50 ms or more)."""
 IMMEDIATE = "immediate"
@@ -103,8 +103,8 @@ class CommandRow:
     """Timed, the expired ones: the least of the FC time it refused one at − its time, by
     the FC's account (expired on arrival: at least the command timeout)."""
     misplaced: int = 0
-    """Timed, of `refused`: too far ahead because the OBC's clock put them `MISPLACED_US` or
-    more after the FC time of the instant meant, by the true clock: an FC clock step it had
+    """Timed, of `refused`: too far ahead because the OBC's clock gave them an FC time due
+    `MISPLACED_US` or more after the instant meant, by the true clock: an FC clock step it had
     not seen yet (the SITL re-anchored after its host fell behind)."""
 
 
@@ -398,8 +398,8 @@ def _row(
             if report.outcome == CommandOutcome.EXPIRED:
                 expired_after = min(expired_after, float(report.after_us))
             if report.outcome == CommandOutcome.TOO_FAR:
-                placed = truth.micros64(report.at_us, end) - truth.fc_us_at(record.intended)
-                misplaced += placed >= MISPLACED_US
+                placed_s = fc_instant(report.at_us) - record.intended
+                misplaced += placed_s >= MISPLACED_US * 1e-6
             if not report.applied or report.event_time_us is None or report.delay_us is None:
                 continue
             applied_us = report.event_time_us

@@ -124,18 +124,6 @@ class TrueClock:
         anchor = self.anchors[index]
         return (anchor.monotonic_ns + (fc_us - anchor.fc_us) * 1000) * 1e-9
 
-    def fc_us_at(self, instant: float) -> int:
-        """The FC time (micros64) the FC had reached at host instant `instant` (s,
-        `time.monotonic`); where the host ran it late, the time it stood at until it
-        re-anchored."""
-        ns = round(instant * 1e9)
-        index = max(0, bisect.bisect_right(self.anchors, ns, key=lambda a: a.monotonic_ns) - 1)
-        anchor = self.anchors[index]
-        reached = anchor.fc_us + (ns - anchor.monotonic_ns) // 1000
-        if index + 1 < len(self.anchors):
-            reached = min(reached, self.anchors[index + 1].fc_us)
-        return reached
-
     def micros64(self, fc_time_us: int, now: float | None = None) -> int:
         """`micros64` of an FC time known modulo 2^32 (a raw `micros()`, or the decoder's
         unwrapped time, which starts at the first raw reading): the latest such time not
