@@ -278,6 +278,30 @@ def test_lone_round_trip_narrower_than_the_others_never_moves_the_offset() -> No
     assert abs(snapshot(decoder)[0] - before[0]) < 10e-6  # type: ignore[operator]
 
 
+def test_a_faster_packet_lowers_the_one_way_line_not_the_two_way_clock() -> None:
+    """A packet arrives 40 µs faster than the one-way line allows, with no round trip after
+    it: the line drops, d_min (its height) with it, and the OBC times stay where the round
+    trips put them, within the uncertainty of the truth."""
+    link, decoder, _, fc_now = warmed_up()
+    clock = two_way(decoder)
+    before, uncertainty = snapshot(decoder)
+    line_before = clock.one_way.to_obc(10_000_000)
+    last = decoder.last_packet
+    assert last is not None and last.seq is not None
+    assert before is not None and line_before is not None
+    tx = fc_now + link.packet_period_us
+    frames = (frame(tx - 700), frame(tx - 200))
+    fast = encode_state(StatePacket(tx % U32, frames, last.seq + 1, True, 0))
+    line_at_tx = clock.one_way.to_obc(tx)
+    assert line_at_tx is not None
+    decoder.feed(fast, line_at_tx - 40e-6)  # still 0.36 ms after it left: a delay ≥ 0
+    line_after = clock.one_way.to_obc(10_000_000)
+    assert line_after is not None and line_before - line_after > 20e-6  # E dropped
+    after = clock.to_obc(10_000_000)
+    assert after is not None and abs(after - before) < 1e-6
+    assert abs(after - link.truth(10_000_000)) <= uncertainty
+
+
 def test_lone_round_trip_off_the_others_is_held_then_rejected() -> None:
     link, decoder, sender, fc_now = warmed_up()
     before = snapshot(decoder)

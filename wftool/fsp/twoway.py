@@ -131,8 +131,9 @@ class TwoWayClockEstimator:
     by a clock that jumped and came back) can narrow it. d_min is the midpoint (equal minimum
     delays both ways, the assumption of every two-way method), the uncertainty the half
     width. Only round trips up to MAX_RTT_S count (PX4's timesync gate); the bounds come from
-    the shortest ones anyway. Since E follows the clock's drift, d_min holds between round
-    trips, however far apart.
+    the shortest ones anyway. d_min is E's height, so it is taken again whenever E moves
+    (a faster packet lowers it, a fit turns it), not only at the next round trip: OBC times
+    move with what the round trips say, never with E's own corrections.
 
     A round trip whose bounds miss the window's by more than TOLERANCE_S is held; CONFIRM such
     in a row that agree with each other are a step (the OBC clock jumped) and restart the
@@ -161,6 +162,8 @@ class TwoWayClockEstimator:
         self._held: list[RoundTrip] = []
         self._delay = math.nan
         self._bounds = (math.nan, math.nan)
+        self._bounds_line: tuple[float, float] | None = None
+        """The line E the bounds were taken against."""
         self._outliers = 0
         self._line_steps: int | None = None
 
@@ -168,8 +171,15 @@ class TwoWayClockEstimator:
 
     def observe(self, fc_time_us: int, obc_time: float) -> None:
         self.one_way.observe(fc_time_us, obc_time)
-        if self._delay == self._delay and self.one_way.state.reinits != self._line_steps:
+        if self._delay != self._delay:  # NaN: no estimate to keep up
+            return
+        one_way = self.one_way.state
+        if one_way.reinits != self._line_steps:
             self._clear()  # d_min was measured against the line before its step: not this one
+            return
+        line = self._line()
+        if line is not None and line != self._bounds_line:
+            self._estimate(line, one_way.locked)
 
     def to_obc(self, fc_time_us: int) -> float | None:
         line = self.one_way.to_obc(fc_time_us)
@@ -295,6 +305,7 @@ class TwoWayClockEstimator:
         if high < low:  # within the tolerance (else held): the mismatch is the uncertainty
             low, high = high, low
         self._bounds = (low, high)
+        self._bounds_line = line
         self._delay = (low + high) / 2
 
     @property
