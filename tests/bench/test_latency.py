@@ -32,7 +32,12 @@ def test_two_way_offset_holds_the_true_clock_within_its_uncertainty(sitl_binary:
     assert set(scored) == {"envelope", "kalman", "twoway"}
     two_way = scored["twoway"]
     assert result.round_trips > 300 and two_way.frames > 5000
-    assert two_way.within_uncertainty is not None and two_way.within_uncertainty >= 0.99
+    assert two_way.within_uncertainty is not None and two_way.within_uncertainty >= 0.99, (
+        two_way,
+        result.reanchors,
+        result.round_trip_rejected,
+        result.rtt,
+    )
     assert two_way.uncertainty_s is not None and two_way.uncertainty_s > 0
     assert result.sample_to_frame is not None and result.sample_to_frame.p50_us > 0
 

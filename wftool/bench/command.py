@@ -106,6 +106,9 @@ class CommandRow:
     """Timed, of `refused`: too far ahead because the OBC's clock gave them an FC time due
     `MISPLACED_US` or more after the instant meant, by the true clock: an FC clock step it had
     not seen yet (the SITL re-anchored after its host fell behind)."""
+    one_way: int = 0
+    """Timed: placed by the one-way line, whose FC times are d_min early: the two-way clock
+    was taking its round trips again after an FC clock step (a re-anchor) cleared them."""
 
 
 @dataclass(frozen=True)
@@ -119,9 +122,8 @@ class CommandBenchResult:
     gyro_hz: float
     uart_pacing: bool
     rows: tuple[CommandRow, ...]
-    two_way: bool
-    """Timed commands were mapped through the two-way clock (spec §8.3)."""
     clock_uncertainty_us: float
+    """The two-way clock's (spec §8.3) at the last timed command it placed."""
     reanchors: int = 0
     """Times the SITL fell more than 50 ms behind the host clock and re-anchored."""
     lateness: Lateness | None = None
@@ -191,8 +193,7 @@ def run_command_bench(
         gyro_hz=board.gyro_clock_hz or board.gyro_hz or 8000,
         uart_pacing=board.uart_pacing,
         rows=rows,
-        two_way=clock.two_way.active,
-        clock_uncertainty_us=clock.state.uncertainty_s * 1e6,
+        clock_uncertainty_us=run.uncertainty_s * 1e6,
         reanchors=sum(1 for a in truth.anchors if a.reason != "start"),
         lateness=lateness,
         stale=status.stale if status is not None else 0,
@@ -223,6 +224,10 @@ class _Run:
         self.k = 0
         self.unlocked: Counter[float] = Counter()
         """Timed commands not sent, by rate: the clock was not locked."""
+        self.one_way: Counter[float] = Counter()
+        """Timed commands placed by the one-way line, by rate (`CommandRow.one_way`)."""
+        self.uncertainty_s = math.nan
+        """The two-way clock's, at the last timed command it placed (or at its lock)."""
         self.last_intended = 0.0
         self._rng = random.Random(1)
         self._sent_at: dict[float, tuple[int, int]] = {}
@@ -250,11 +255,17 @@ class _Run:
         self.k += 1
         now = time.monotonic()
         if mode == TIMED:
+            two_way = self.decoder.clock
+            assert isinstance(two_way, TwoWayClockEstimator)
             try:
                 packet = self.reader.send_command(rc, now, at=intended)
             except ClockError:
                 self.unlocked[rate] += 1
                 return
+            if two_way.two_way.active:
+                self.uncertainty_s = two_way.state.uncertainty_s
+            else:
+                self.one_way[rate] += 1
         else:
             packet = self.reader.send_command(rc, now)
             intended = now
@@ -287,6 +298,7 @@ class _Run:
             until = time.monotonic() + self._rng.uniform(0.005, 0.015)
             while (left := until - time.monotonic()) > 0:
                 self.read(min(READ_S, left))
+        self.uncertainty_s = clock.state.uncertainty_s
         self.sent.clear()
 
     def commands(self, mode: str, rate: float, seconds: float, lead_s: float) -> None:
@@ -427,6 +439,7 @@ def _row(
         refused=sum(outcomes[outcome] for outcome in REFUSED),
         superseded=outcomes[CommandOutcome.SUPERSEDED],
         unlocked=run.unlocked[rate] if mode == TIMED else 0,
+        one_way=run.one_way[rate] if mode == TIMED else 0,
         unreported=len(sent) - answered,
         apply=Distribution.of(apply),
         seen=Distribution.of(seen),

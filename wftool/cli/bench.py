@@ -379,8 +379,8 @@ def bench_command(
     out.print(
         f"bench command: {seconds:g} s per row on the virtual FC (PID loop {1e6 / pid:.0f} Hz, "
         f"{pid:.1f} µs; UARTs {'at their baud rates' if result.uart_pacing else 'as fast as TCP'}"
-        f"); timed commands mapped through the {'two-way' if result.two_way else 'one-way'} "
-        f"clock (± {result.clock_uncertainty_us:.0f} µs)"
+        f"); timed commands mapped through the two-way clock "
+        f"(± {result.clock_uncertainty_us:.0f} µs)"
     )
     spread = ("P1", "P50", "P99", "P99−P1", "max")
     table = Table(title="FC apply time − intended time, µs (true clock)", box=None, pad_edge=False)
@@ -429,9 +429,11 @@ def bench_command(
         else f"{result.reanchors} re-anchors"
     )
     unlocked = sum(row.unlocked for row in result.rows)
+    one_way = sum(row.one_way for row in result.rows)
     misplaced = sum(row.misplaced for row in result.rows)
     out.print(
         f"{host}; timed commands not sent while the clock was unlocked: {unlocked}, "
+        f"placed by the one-way line while the two-way clock relearnt: {one_way}, "
         f"refused as placed across an FC clock step not yet seen: {misplaced}; "
         f"the FC's books (E3): {result.accepted:,} fresh, {result.stale:,} stale of "
         f"{result.packets:,} commands; reports lost: {result.lost_reports}"
