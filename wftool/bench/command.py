@@ -178,8 +178,6 @@ def run_command_bench(
             truth.refresh()
             lateness = lateness_between(session.fc.log_path, start, time.monotonic())
     end = time.monotonic()
-    clock = run.decoder.clock
-    assert isinstance(clock, TwoWayClockEstimator)
     rows = tuple(
         _row(run, truth, end, mode, rate, lead_s)
         for rate in rates_hz
@@ -210,6 +208,9 @@ class _Run:
     def __init__(self, url: str) -> None:
         self.decoder = StateDecoder("twoway")
         assert self.decoder.round_trips is not None
+        clock = self.decoder.clock
+        assert isinstance(clock, TwoWayClockEstimator)
+        self.clock = clock
         self.decoder.round_trips.on_round_trip = self._round_trip
         self.reader = FspReader(url, decoder=self.decoder).open()
         self.sent: list[_Sent] = []
@@ -255,15 +256,13 @@ class _Run:
         self.k += 1
         now = time.monotonic()
         if mode == TIMED:
-            two_way = self.decoder.clock
-            assert isinstance(two_way, TwoWayClockEstimator)
             try:
                 packet = self.reader.send_command(rc, now, at=intended)
             except ClockError:
                 self.unlocked[rate] += 1
                 return
-            if two_way.two_way.active:
-                self.uncertainty_s = two_way.state.uncertainty_s
+            if self.clock.two_way.active:
+                self.uncertainty_s = self.clock.state.uncertainty_s
             else:
                 self.one_way[rate] += 1
         else:
@@ -278,8 +277,7 @@ class _Run:
 
     def lock(self) -> None:
         """Immediate commands at 100 Hz until the two-way clock is in use."""
-        clock = self.decoder.clock
-        assert isinstance(clock, TwoWayClockEstimator)
+        clock = self.clock
         deadline = time.monotonic() + LOCK_TIMEOUT_S
         while not (clock.state.locked and clock.two_way.active):
             if time.monotonic() > deadline:
